@@ -48,13 +48,14 @@ def test_installed_wheel_builds_and_drops_from_another_folder(wheel, tmp_path):
         capture_output=True,
         text=True,
     ).stdout.strip()
-    borrowed = {sysconfig.get_paths()["purelib"], *site.getsitepackages()}
-    (Path(purelib) / "borrowed_dependencies.pth").write_text("\n".join(sorted(borrowed)) + "\n")
+    # Install first: with the borrowed folders visible, pip would find microg-env "already there".
     subprocess.run(
         [str(python), "-m", "pip", "install", "--no-deps", "--no-index", "-q", str(wheel)],
         check=True,
         capture_output=True,
     )
+    borrowed = {sysconfig.get_paths()["purelib"], *site.getsitepackages()}
+    (Path(purelib) / "borrowed_dependencies.pth").write_text("\n".join(sorted(borrowed)) + "\n")
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     probe = subprocess.run(
