@@ -1,16 +1,41 @@
-"""microg: MuJoCo model of the QZS microgravity landing rig of Jia et al., Actuators 2024, 13(9), 361."""
+"""microg: MuJoCo model of the QZS microgravity landing rig of Jia et al., Actuators 2024, 13(9), 361.
+
+Importing the package registers the Gymnasium environment ``MicroGravityLanding-v0``.
+"""
+
+from gymnasium.envs.registration import register, registry
 
 from microg_env.contact import SpringDamperContact
 from microg_env.drop import drop_test, static_sink
+from microg_env.env import MicroGravityLandingEnv
+from microg_env.imperfections import DomainRandomization, Imperfections
 from microg_env.model import PadTest, Rig, build_pad_test, build_rig
 from microg_env.params import RigParams
+from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
 
 __version__ = "0.1.0"
 
+#: 30 s (Section 3.2) at the default 1 kHz control rate.
+MAX_EPISODE_STEPS = 30_000
+
+if "MicroGravityLanding-v0" not in registry:
+    register(
+        id="MicroGravityLanding-v0",
+        entry_point="microg_env.env:MicroGravityLandingEnv",
+        max_episode_steps=MAX_EPISODE_STEPS,
+    )
+
 __all__ = [
+    "CONDITIONS",
+    "MAX_EPISODE_STEPS",
+    "DomainRandomization",
+    "Imperfections",
+    "LoadStep",
+    "MicroGravityLandingEnv",
     "PadTest",
     "Rig",
     "RigParams",
+    "Scenario",
     "SpringDamperContact",
     "__version__",
     "build_pad_test",

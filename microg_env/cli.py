@@ -11,10 +11,15 @@ import os
 import sys
 import tempfile
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
+from microg_env.controllers import CONTROLLER_NAMES
 from microg_env.drop import DropReport, drop_test
+from microg_env.imperfections import Imperfections
+from microg_env.metrics import RunMetrics
 from microg_env.params import RigParams
+from microg_env.scenarios import LoadStep, Scenario, condition
 
 
 class UsageError(Exception):
@@ -95,6 +100,100 @@ def _cmd_export_mjcf(args: argparse.Namespace) -> int:
     return 0
 
 
+def _load_step(text: str) -> LoadStep:
+    """KG[@HEIGHT_MM]: a weight placed at t = 0, or when the foot is HEIGHT_MM above the pad."""
+    mass, _, height = text.partition("@")
+    try:
+        return LoadStep(float(mass), float(height) * 1e-3 if height else None)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"bad load {text!r}: {error}") from None
+
+
+def _scenario(args: argparse.Namespace) -> Scenario:
+    scenario = condition(args.condition)
+    if args.load:
+        scenario = replace(scenario, name="custom", loads=tuple(args.load))
+    if args.height is not None:
+        scenario = replace(scenario, name="custom", descent_height_m=args.height * 1e-3)
+    if args.duration is not None:
+        scenario = replace(scenario, duration_s=args.duration)
+    return scenario
+
+
+def _format_row(label: str, values: list[float], scale: float, spec: str) -> str:
+    cells = "".join(f"{'-' if v is None or v != v else format(v * scale, spec):>12}" for v in values)
+    return f"  {label:<36}{cells}"
+
+
+def _print_run(scenario: Scenario, args: argparse.Namespace, m: RunMetrics) -> None:
+    loads = ", ".join(
+        f"{load.mass_kg:g} kg" + ("" if load.height_m is None else f" at {load.height_m * 1e3:g} mm")
+        for load in scenario.loads
+    )
+    print(
+        f"{scenario.name}: loads {loads}; descent from {scenario.descent_height_m * 1e3:g} mm; "
+        f"controller {args.controller}; seed {args.seed}; {scenario.duration_s:g} s at "
+        f"{args.control_period:g} us; imperfections {'off' if args.ideal else 'on'}"
+    )
+    if m.termination_reason:
+        print(f"  episode ended early: {m.termination_reason}")
+    stages = len(m.descent_accel_m_s2)
+    print(f"{'free fall, per load stage':<38}" + "".join(f"{'stage ' + str(i + 1):>12}" for i in range(stages)))
+    print(_format_row("external load [kg]", list(scenario.stages_kg), 1.0, ".3g"))
+    print(_format_row("descent acceleration [mm/s^2]", m.descent_accel_m_s2, 1e3, ".4f"))
+    print(_format_row("ideal m g/(M+m) [mm/s^2]", m.ideal_descent_accel_m_s2, 1e3, ".4f"))
+    print(_format_row("compensation error [%]", m.compensation_error_pct, 1.0, "+.3f"))
+    print(_format_row("residual gravity error [g]", m.residual_gravity_g, 1.0, "+.2e"))
+    print(_format_row("microgravity level [g]", m.microgravity_level_g, 1.0, ".2e"))
+    print("flexible unit")
+    print(_format_row("max |x| in free fall [um]", [m.flexible_unit_excursion_free_fall_m], 1e6, ".3f"))
+    print(_format_row("max |x| during the collision [um]", [m.flexible_unit_excursion_collision_m], 1e6, ".3f"))
+    print(_format_row("support force variation [N]", [m.support_force_variation_n], 1.0, ".4f"))
+    print(f"{'first landing':<38}{'rig':>12}{'ideal':>12}")
+    print(_format_row("peak pad deformation [mm]", [m.max_deformation_m, m.reference_max_deformation_m], 1e3, ".3f"))
+    print(
+        _format_row(
+            "collision acceleration [mm/s^2]", [m.collision_accel_m_s2, m.reference_collision_accel_m_s2], 1e3, ".2f"
+        )
+    )
+    print(_format_row("contact time [s]", [m.contact_time_s, m.reference_contact_time_s], 1.0, ".4f"))
+    print(_format_row("restitution [-]", [m.restitution, m.reference_restitution], 1.0, ".4f"))
+    print(_format_row("rebound height [mm]", [m.rebound_height_m], 1e3, ".2f"))
+    print(_format_row("RMS height error to rebound end [mm]", [m.reference_rms_height_error_m], 1e3, ".4f"))
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from microg_env.controllers import make_controller
+    from microg_env.env import MicroGravityLandingEnv
+    from microg_env.evaluate import run_with_metrics
+
+    if args.plot is not None:
+        _check_writable(Path(args.plot))
+    scenario = _scenario(args)
+    period = args.control_period * 1e-6
+    imperfections = Imperfections.none() if args.ideal else Imperfections()
+    env = MicroGravityLandingEnv(scenario=scenario, control_period_s=period, imperfections=imperfections)
+    controller = make_controller(args.controller, period)
+    trajectory, reference, metrics = run_with_metrics(env, controller, seed=args.seed)
+    if args.json:
+        print(json.dumps(metrics.as_dict(), indent=2))
+    else:
+        _print_run(scenario, args, metrics)
+    if args.plot is not None:
+        from microg_env.plots import plot_run
+
+        plot_run(trajectory, reference, f"{scenario.name}, {args.controller}, seed {args.seed}", Path(args.plot))
+        if not args.json:
+            print(f"wrote {args.plot}")
+    return 0
+
+
+def _check_writable(path: Path) -> None:
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir() or not os.access(directory, os.W_OK):
+        raise UsageError(f"microg: error: cannot write {path}: folder {directory} is missing or not writable")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="microg", description="MuJoCo model of the QZS microgravity landing rig (Jia et al. 2024).")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -116,6 +215,34 @@ def build_parser() -> argparse.ArgumentParser:
     drop.add_argument("--velocity", type=_float, default=0.0373, metavar="M_PER_S", help="impact speed")
     drop.add_argument("--json", action="store_true", help="print one JSON object")
     drop.set_defaults(handler=_cmd_drop)
+
+    run = commands.add_parser(
+        "run",
+        help="run a test condition with a baseline controller and print its metrics",
+        description="Run one of the paper's test conditions (or a custom load schedule) in the environment with a "
+        "baseline controller, and print the microgravity and landing metrics beside the ideal-microgravity reference.",
+    )
+    run.add_argument("--condition", type=int, choices=(1, 2, 3), default=1, help="the paper's condition (Table 2)")
+    run.add_argument(
+        "--load",
+        type=_load_step,
+        action="append",
+        default=[],
+        metavar="KG[@HEIGHT_MM]",
+        help="a test weight placed at t = 0, or once the foot is HEIGHT_MM above the pad; repeat for more "
+        "(replaces the condition's loads)",
+    )
+    run.add_argument("--height", type=_float, metavar="MM", help="descent height of the foot above the pad")
+    run.add_argument("--controller", choices=CONTROLLER_NAMES, default="pid", help="baseline controller")
+    run.add_argument("--duration", type=_float, metavar="S", help="simulated time (default 30 s)")
+    run.add_argument("--seed", type=int, default=0, help="seed of sensor noise and drift")
+    run.add_argument(
+        "--control-period", type=_float, default=1000.0, metavar="US", help="control period (paper: 1000/500/200/100)"
+    )
+    run.add_argument("--ideal", action="store_true", help="switch every imperfection off")
+    run.add_argument("--json", action="store_true", help="print one JSON object of metrics")
+    run.add_argument("--plot", metavar="FILE", help="write height, x, acceleration and pad force over time (PNG)")
+    run.set_defaults(handler=_cmd_run)
 
     export = commands.add_parser(
         "export-mjcf",

@@ -71,7 +71,13 @@ def pad_contact_solref(
 
 
 class Rig:
-    """A compiled rig model and the addresses a simulation of it needs."""
+    """A compiled rig model, the addresses a simulation needs, and which test weights are placed.
+
+    A test weight that is not yet placed is held off the lander (by the experimenter's hand): it
+    has no mass in the model, so it neither weighs on the lander nor adds to its inertia. Placing
+    it (:meth:`place_loads`) gives it its mass and retunes the pad contact to the new total mass.
+    The load configuration lives in ``model``, so use one Rig per simulated rig.
+    """
 
     def __init__(self, model: mujoco.MjModel, params: RigParams, loads_kg: tuple[float, ...], pad_contacts: int):
         self.model = model
@@ -83,8 +89,34 @@ class Rig:
         self.qzs_qpos = int(model.jnt_qposadr[qzs])
         self.screw_dof = int(model.jnt_dofadr[screw])
         self.qzs_dof = int(model.jnt_dofadr[qzs])
-        self.load_bodies = tuple(int(model.body(f"load_{i}").id) for i in range(len(loads_kg)))
         self.gear = params.screw.gear_rad_per_m  # motor radians per metre of support travel
+        self.load_bodies = np.array([model.body(f"load_{i}").id for i in range(len(loads_kg))], dtype=int)
+        self._load_geoms = np.array([model.geom(f"load_{i}").id for i in range(len(loads_kg))], dtype=int)
+        self._load_inertia = model.body_inertia[self.load_bodies].copy()
+        self._pad_geom = model.geom("pad").id
+        self.placed = np.ones(len(loads_kg), dtype=bool)  # as compiled: every weight on the lander
+        self.placed_load_kg = float(sum(loads_kg))  # total of the weights on the lander, kg
+
+    def place_loads(self, placed: np.ndarray | list[bool]) -> None:
+        """Put each test weight on the lander (True) or hold it off (False)."""
+        placed = np.asarray(placed, dtype=bool)
+        if placed.shape != self.placed.shape:
+            raise ValueError(f"placed must have one entry per load ({self.placed.size}), got shape {placed.shape}")
+        self.placed[:] = placed
+        self.placed_load_kg = float(np.dot(self.loads_kg, placed)) if self.loads_kg else 0.0
+        model = self.model
+        model.body_mass[self.load_bodies] = np.where(placed, self.loads_kg, 0.0)
+        model.body_inertia[self.load_bodies] = np.where(placed[:, None], self._load_inertia, 0.0)
+        model.geom_rgba[self._load_geoms, 3] = np.where(placed, 1.0, 0.25)  # held weights drawn faint
+        pad = self.params.pad
+        solref, _ = pad_contact_solref(
+            pad.stiffness_n_per_m,
+            pad.damping_n_s_per_m,
+            self.params.lander.mass_kg + self.placed_load_kg,
+            self.pad_contacts,
+            pad.impedance,
+        )
+        model.geom_solref[self._pad_geom] = solref
 
     def foot_height(self, data: mujoco.MjData) -> float:
         """Height of the foot's sole above the undeformed pad, m (negative: deforming the pad)."""
@@ -94,19 +126,13 @@ class Rig:
         """Vertical velocity of the lander, m/s (up positive)."""
         return float(data.qvel[self.screw_dof] + data.qvel[self.qzs_dof])
 
-    def set_loads_held(self, data: mujoco.MjData, held: np.ndarray | list[bool]) -> None:
-        """Hold (True) or place (False) each load: a held load is carried by an upward force m g."""
-        g = self.params.gravity_m_s2
-        for body, mass, is_held in zip(self.load_bodies, self.loads_kg, held, strict=True):
-            data.xfrc_applied[body, 2] = mass * g if is_held else 0.0
-
     def reset(self, data: mujoco.MjData, height_m: float) -> None:
-        """Balanced rest: foot ``height_m`` above the pad, x = 0, servo holding, every load held."""
+        """Balanced rest: foot ``height_m`` above the pad, x = 0, servo holding, no weight placed."""
+        self.place_loads(np.zeros(len(self.loads_kg), dtype=bool))
         mujoco.mj_resetData(self.model, data)
-        data.ctrl[:] = (height_m * self.gear, 0.0)
-        # The speed loop's position term holds the weight with a small lag; start it settled.
-        data.qpos[self.screw_qpos] = height_m - self.holding_sag_m()
-        self.set_loads_held(data, [True] * len(self.loads_kg))
+        data.qpos[self.screw_qpos] = height_m
+        # The speed loop's position term holds the weight with a small lag behind its reference.
+        data.ctrl[:] = ((height_m + self.holding_sag_m()) * self.gear, 0.0)
         mujoco.mj_forward(self.model, data)
 
     def holding_sag_m(self) -> float:
@@ -181,22 +207,39 @@ def _add_loads(spec: mujoco.MjSpec, loads_kg: tuple[float, ...]) -> None:
         )
 
 
-def _apply_flexible_unit(spec: mujoco.MjSpec, params: RigParams) -> None:
-    """QZS spring (Eq. 17) and nitrogen balancer, balanced to carry the lander at x = 0."""
+@dataclass(frozen=True)
+class FlexibleUnit:
+    """QZS mechanism and nitrogen balancer, balanced to carry the lander at x = 0."""
+
+    qzs_force_n: float  # QZS force at x = 0: its weight share plus Eq. (17)'s constant term
+    balancer_force_n: float  # the rest of the lander's weight (the balancer is trimmed, Section 4.1)
+    balancer_stiffness_n_per_m: float
+    stiffness_n_per_m: float  # QZS (Eq. 17) plus balancer: the force lost per metre of x
+
+
+def flexible_unit(params: RigParams) -> FlexibleUnit:
+    """Forces and stiffness of the flexible unit for ``params``."""
     qzs, weight = params.qzs, params.lander.mass_kg * params.gravity_m_s2
     qzs_force = qzs.weight_share * weight + qzs.force_offset_n
-    joint = spec.joint("qzs")
-    joint.stiffness = (qzs.stiffness_n_per_m, 0.0, 0.0)
-    joint.springref = qzs_force / qzs.stiffness_n_per_m
-    joint.damping = (qzs.guide_damping_n_s_per_m, 0.0, 0.0)
-    joint.frictionloss = qzs.guide_friction_n
-    balancer_force = weight - qzs_force  # trimmed before the test (Section 4.1)
+    balancer_force = weight - qzs_force
     if balancer_force <= 0:
         raise ValueError(f"QZSParams.weight_share {qzs.weight_share!r} leaves the balancer no weight to carry")
-    stiffness = params.balancer.stiffness_n_per_m(balancer_force)
+    balancer_stiffness = params.balancer.stiffness_n_per_m(balancer_force)
+    return FlexibleUnit(qzs_force, balancer_force, balancer_stiffness, qzs.stiffness_n_per_m + balancer_stiffness)
+
+
+def _apply_flexible_unit(spec: mujoco.MjSpec, params: RigParams) -> None:
+    """QZS spring (Eq. 17) and nitrogen balancer as preloaded linear springs on x."""
+    unit, qzs = flexible_unit(params), params.qzs
+    joint = spec.joint("qzs")
+    joint.stiffness = (qzs.stiffness_n_per_m, 0.0, 0.0)
+    joint.springref = unit.qzs_force_n / qzs.stiffness_n_per_m
+    joint.damping = (qzs.guide_damping_n_s_per_m, 0.0, 0.0)
+    joint.frictionloss = qzs.guide_friction_n
     tendon = spec.tendon("balancer")
-    tendon.stiffness = (stiffness, 0.0, 0.0)
-    tendon.springlength = (balancer_force / stiffness, balancer_force / stiffness)
+    free_length = unit.balancer_force_n / unit.balancer_stiffness_n_per_m
+    tendon.stiffness = (unit.balancer_stiffness_n_per_m, 0.0, 0.0)
+    tendon.springlength = (free_length, free_length)
 
 
 def speed_loop_gains(params: RigParams) -> tuple[float, float]:
@@ -225,7 +268,7 @@ def _apply_servo(spec: mujoco.MjSpec, params: RigParams) -> None:
     actuator.set_to_dcmotor(
         motorconst=(servo.torque_constant_n_m_per_a, servo.torque_constant_n_m_per_a),
         resistance=servo.resistance_ohm,
-        saturation=(servo.peak_torque_n_m, 0.0, 0.0),
+        saturation=(servo.peak_torque_n_m if math.isfinite(servo.peak_torque_n_m) else 0.0, 0.0, 0.0),
         cogging=(servo.cogging_torque_n_m, float(servo.cogging_cycles_per_rev), 0.0),
         controller=(kp, 0.0, kd, 0.0, 0.0, servo.bus_voltage_v),
         lugre=(
@@ -266,11 +309,16 @@ def _apply_pad_contact(spec: mujoco.MjSpec, params: RigParams, mass_kg: float, h
     return n_contacts
 
 
-def build_spec(params: RigParams, loads_kg: tuple[float, ...] = ()) -> tuple[mujoco.MjSpec, int]:
-    """The rig's MjSpec with every value of ``params`` applied, and its foot-pad contact count."""
+def build_spec(
+    params: RigParams, loads_kg: tuple[float, ...] = (), xml_file: str | Path | None = None
+) -> tuple[mujoco.MjSpec, int]:
+    """The rig's MjSpec with every value of ``params`` applied, and its foot-pad contact count.
+
+    ``xml_file`` replaces the packaged ``scene.xml`` template; it must name the same elements.
+    """
     loads_kg = tuple(loads_kg)
     _validate_loads(loads_kg, params.lander.mass_kg)
-    spec = mujoco.MjSpec.from_file(str(mjcf_dir() / "scene.xml"))
+    spec = mujoco.MjSpec.from_file(str(mjcf_dir() / "scene.xml" if xml_file is None else xml_file))
     _apply_geometry_and_masses(spec, params)
     _add_loads(spec, loads_kg)
     _apply_flexible_unit(spec, params)
@@ -281,10 +329,12 @@ def build_spec(params: RigParams, loads_kg: tuple[float, ...] = ()) -> tuple[muj
     return spec, n_contacts
 
 
-def build_rig(params: RigParams | None = None, loads_kg: tuple[float, ...] = ()) -> Rig:
-    """Compile the rig for ``params`` (default: the paper's rig) carrying ``loads_kg``."""
+def build_rig(
+    params: RigParams | None = None, loads_kg: tuple[float, ...] = (), xml_file: str | Path | None = None
+) -> Rig:
+    """Compile the rig for ``params`` (default: the paper's rig) with test weights ``loads_kg``."""
     params = RigParams() if params is None else params
-    spec, n_contacts = build_spec(params, loads_kg)
+    spec, n_contacts = build_spec(params, loads_kg, xml_file)
     return Rig(spec.compile(), params, tuple(float(m) for m in loads_kg), n_contacts)
 
 

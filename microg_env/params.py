@@ -190,6 +190,7 @@ class ServoParams:
     rated_speed_rpm: float = 1500.0  # Section 4.1
     rated_power_w: float = 7500.0  # Section 4.1
     #: Assumption: 2.5 x rated, the instantaneous maximum of Yaskawa's 7.5 kW Sigma-7 motors.
+    #: ``math.inf`` removes the limit.
     peak_torque_n_m: float = 119.0
     #: Assumption: rotor inertia of a 7.5 kW, 1500 rpm medium-inertia motor (catalogue class).
     rotor_inertia_kg_m2: float = 0.0101
@@ -216,7 +217,6 @@ class ServoParams:
             "rated_torque_n_m",
             "rated_speed_rpm",
             "rated_power_w",
-            "peak_torque_n_m",
             "rotor_inertia_kg_m2",
             "torque_constant_n_m_per_a",
             "resistance_ohm",
@@ -233,7 +233,7 @@ class ServoParams:
             "bristle_stiffness_n_m_per_rad",
             "bristle_damping_n_m_s_per_rad",
         )
-        if self.peak_torque_n_m < self.rated_torque_n_m:
+        if not (isinstance(self.peak_torque_n_m, int | float) and self.peak_torque_n_m >= self.rated_torque_n_m):
             raise ValueError(
                 f"ServoParams.peak_torque_n_m {self.peak_torque_n_m!r} is below the rated torque "
                 f"{self.rated_torque_n_m!r}"
@@ -246,6 +246,41 @@ class ServoParams:
 
 
 @dataclass(frozen=True)
+class SensorParams:
+    """The rig's sensors as the controller sees them (Section 4.1 names them; values assumed)."""
+
+    #: Assumption: an exposed grating ruler with interpolating read head (5 nm measuring step,
+    #: 5 nm RMS noise), fine enough to resolve the 0.15-0.3 um changes the paper reports.
+    ruler_resolution_m: float = 5.0e-9
+    ruler_noise_m: float = 5.0e-9
+    #: Assumption: the Sigma-7 motor's 24-bit absolute encoder (3 nm of support travel per count).
+    encoder_counts_per_rev: int = 2**24
+    #: Assumption: a quartz-flex servo accelerometer, 5 ug/sqrt(Hz) (1.1 mm/s^2 RMS per 1 kHz sample).
+    accelerometer_noise_density_m_s2_per_sqrt_hz: float = 5.0e-6 * GRAVITY_M_S2
+    #: Assumption: 0.1 N RMS from the pad's force sensor (0.02 % of a 500 N range).
+    force_noise_n: float = 0.1
+
+    def __post_init__(self) -> None:
+        _require_positive(self, "ruler_resolution_m", "encoder_counts_per_rev")
+        _require_non_negative(self, "ruler_noise_m", "accelerometer_noise_density_m_s2_per_sqrt_hz", "force_noise_n")
+
+
+@dataclass(frozen=True)
+class BalancerDriftParams:
+    """Slow drift of the nitrogen balancer's force with its gas temperature, dF/F = dT/T."""
+
+    gas_temperature_k: float = 293.15  # assumption: a 20 C test hall
+    #: Assumption: largest gas-temperature drift rate, K/s. A hall drifting 0.5 K/h reaches the gas
+    #: through a steel accumulator with a thermal time of about an hour: ~1e-5 K/s. Each episode
+    #: draws a rate uniformly in [-max, +max].
+    max_temperature_rate_k_per_s: float = 1.0e-5
+
+    def __post_init__(self) -> None:
+        _require_positive(self, "gas_temperature_k")
+        _require_non_negative(self, "max_temperature_rate_k_per_s")
+
+
+@dataclass(frozen=True)
 class RigParams:
     """The whole rig. ``RigParams()`` is the paper's rig with this project's stated assumptions."""
 
@@ -255,6 +290,8 @@ class RigParams:
     balancer: BalancerParams = field(default_factory=BalancerParams)
     screw: ScrewStageParams = field(default_factory=ScrewStageParams)
     servo: ServoParams = field(default_factory=ServoParams)
+    sensors: SensorParams = field(default_factory=SensorParams)
+    drift: BalancerDriftParams = field(default_factory=BalancerDriftParams)
     gravity_m_s2: float = GRAVITY_M_S2
     #: Assumption: 0.5 ms physics step; it divides the paper's 1000 and 500 us control periods and
     #: resolves the fastest dynamics (the 100 Hz speed loop) with Kv dt = 0.31.
@@ -263,7 +300,8 @@ class RigParams:
     def __post_init__(self) -> None:
         _require_positive(self, "gravity_m_s2", "timestep_s")
         parts = {"lander": LanderParams, "pad": PadParams, "qzs": QZSParams, "balancer": BalancerParams}
-        parts |= {"screw": ScrewStageParams, "servo": ServoParams}
+        parts |= {"screw": ScrewStageParams, "servo": ServoParams, "sensors": SensorParams}
+        parts |= {"drift": BalancerDriftParams}
         for name, kind in parts.items():
             if not isinstance(getattr(self, name), kind):
                 raise ValueError(

@@ -58,6 +58,18 @@ def test_drop_table_names_the_quantities(capsys):
         (["drop", "--bogus"], "--bogus"),
         (["fly"], "fly"),
         (["export-mjcf", "/nonexistent-folder/rig.xml"], "nonexistent-folder"),
+        (["run", "--condition", "4"], "--condition"),
+        (["run", "--load", "heavy"], "heavy"),
+        (["run", "--load", "-0.05"], "mass_kg"),
+        (["run", "--load", "0.05@20"], "t = 0"),
+        (["run", "--load", "0.05", "--load", "1@100"], "descent height"),
+        (["run", "--load", "0.05", "--load", "9"], "1e-2 g"),
+        (["run", "--height", "600"], "descent_height_m"),
+        (["run", "--height", "-5"], "descent_height_m"),
+        (["run", "--controller", "lqr"], "--controller"),
+        (["run", "--duration", "0"], "duration_s"),
+        (["run", "--control-period", "0"], "control_period_s"),
+        (["run", "--plot", "/nonexistent-folder/run.png"], "nonexistent-folder"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(args, word):
@@ -77,3 +89,40 @@ def test_export_mjcf_writes_a_model_that_compiles(tmp_path, capsys):
     assert model.body("load_0").mass[0] == pytest.approx(0.05)
     assert model.geom_solref[model.geom("pad").id, 0] < 0  # the computed pad contact is in it
     assert list(tmp_path.iterdir()) == [out]  # no temporary file left behind
+
+
+def test_run_json_keys_and_signs(capsys):
+    assert main(["run", "--condition", "2", "--duration", "6", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    for key in (
+        "descent_accel_m_s2",
+        "ideal_descent_accel_m_s2",
+        "compensation_error_pct",
+        "residual_gravity_g",
+        "flexible_unit_excursion_free_fall_m",
+        "flexible_unit_excursion_collision_m",
+        "support_force_variation_n",
+        "max_deformation_m",
+        "collision_accel_m_s2",
+        "contact_time_s",
+        "restitution",
+        "rebound_height_m",
+        "reference_max_deformation_m",
+        "reference_rms_height_error_m",
+    ):
+        assert key in result
+    assert result["ideal_descent_accel_m_s2"] == [pytest.approx(-1.0 * 9.8009 / 621.0)]
+    assert result["descent_accel_m_s2"][0] < 0  # down is negative
+    assert result["collision_accel_m_s2"] > 0  # the pad pushes up
+
+
+def test_run_custom_loads_table_and_plot(tmp_path, capsys):
+    plot = tmp_path / "run.png"
+    args = ["run", "--load", "0.05", "--load", "1.0@30", "--height", "60", "--duration", "4", "--plot", str(plot)]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "custom" in out
+    assert "stage 2" in out
+    assert "compensation error" in out
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert list(tmp_path.iterdir()) == [plot]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from microg_env.ideal import IdealFollower
-from microg_env.model import TEMPLATE_LOADS, build_rig, mjcf_dir
+from microg_env.model import TEMPLATE_LOADS, build_rig, flexible_unit, mjcf_dir
 from microg_env.params import GRAVITY_M_S2, LanderParams, PadParams, QZSParams, RigParams, ServoParams
 
 MJCF_FILES = sorted(Path(mjcf_dir()).glob("*.xml"))
@@ -91,13 +91,15 @@ def test_qzs_and_balancer_carry_the_lander_at_x_zero(loads):
     rig.reset(data, 0.09)
     weight = params.lander.mass_kg * GRAVITY_M_S2
     assert data.qfrc_passive[rig.qzs_dof] == pytest.approx(weight, rel=1e-12)
-    # Displacing x shows the summed residual stiffness: QZS (Eq. 17) plus the gas spring.
+    # Displacing x shows the summed residual stiffness: QZS (Eq. 17) plus the gas spring k = n F A / V.
     data.qpos[rig.qzs_qpos] = 1e-3
     mujoco.mj_forward(rig.model, data)
     stiffness = (weight - data.qfrc_passive[rig.qzs_dof]) / 1e-3
     balancer_force = weight * (1 - params.qzs.weight_share) - params.qzs.force_offset_n
-    expected = params.qzs.stiffness_n_per_m + params.balancer.stiffness_n_per_m(balancer_force)
+    gas_spring = params.balancer.polytropic_index * balancer_force * params.balancer.piston_area_m2
+    expected = params.qzs.stiffness_n_per_m + gas_spring / params.balancer.gas_volume_m3
     assert stiffness == pytest.approx(expected, rel=1e-9)
+    assert stiffness == pytest.approx(flexible_unit(params).stiffness_n_per_m, rel=1e-9)
     assert expected < 1.05 * params.qzs.stiffness_n_per_m  # the balancer is a small addition
 
 
@@ -107,7 +109,7 @@ def test_ideal_following_gives_the_ideal_descent(loads):
     rig = build_rig(loads_kg=loads)
     data = mujoco.MjData(rig.model)
     rig.reset(data, 0.09)
-    rig.set_loads_held(data, [False] * len(loads))
+    rig.place_loads([True] * len(loads))
     follower = IdealFollower(rig)
     times, heights = [], []
     while data.time < 3.0 and rig.foot_height(data) > 0.005:
@@ -125,6 +127,7 @@ def test_held_loads_leave_the_rig_balanced():
     rig = build_rig(loads_kg=(0.05, 0.49, 1.0))
     data = mujoco.MjData(rig.model)
     rig.reset(data, 0.09)
+    assert rig.placed_load_kg == 0.0
     start = rig.foot_height(data)
     for _ in range(4000):  # 2 s with the servo holding position
         mujoco.mj_step(rig.model, data)
@@ -175,3 +178,18 @@ def test_bad_parameters_are_named():
         replace(PadParams(), stiffness_n_per_m=0.0)
     with pytest.raises(ValueError, match="weight_share"):
         QZSParams(weight_share=1.5)
+
+
+def test_placing_a_load_adds_its_mass_and_keeps_the_pad_law():
+    params = RigParams()
+    rig = build_rig(params, loads_kg=(0.05, 1.0))
+    data = mujoco.MjData(rig.model)
+    rig.reset(data, 0.055)
+    carried = [rig.model.body("lander").id, *rig.load_bodies]
+    assert rig.model.body_mass[carried].sum() == pytest.approx(620.0)
+    rig.place_loads([True, False])
+    assert rig.model.body_mass[carried].sum() == pytest.approx(620.05)
+    # The pad's physical stiffness stays K: solref (acceleration units) times the mass it moves.
+    solref = rig.model.geom_solref[rig.model.geom("pad").id, 0]
+    n, d = rig.pad_contacts, params.pad.impedance
+    assert -solref * n * 620.05 / (1 + (n - 1) * d) == pytest.approx(params.pad.stiffness_n_per_m)

@@ -1,0 +1,224 @@
+"""Metrics of a run, computed from its :class:`~microg_env.trajectory.Trajectory` alone.
+
+The quantities the paper and the field report (all SI, accelerations up positive):
+
+* descent acceleration of each load stage, by a quadratic fit of the foot height over the stage's
+  free fall (from ``SETTLE_S`` after the weight is placed to the next weight or the touchdown),
+  beside the ideal m g / (M + m); the compensation error a / a_ideal - 1 (Table 4) and the residual
+  gravity error (a - a_ideal) / g;
+* flexible-unit excursion max |x| in free fall (start to touchdown) and during the first contact
+  (Section 3.2: "the relative displacement change ... at the instant of collision"); the largest
+  deviation of the support force (QZS and balancer) from its balanced value;
+* of the first contact: peak pad deformation, peak (collision) acceleration of the lander
+  (Tables 3 and 6), contact time and restitution (Eqs. 7 and 9); the rebound height;
+* fidelity against the ideal-microgravity reference (the same lander and pad in the uniform field
+  m g / (M + m), no rig): its peak deformation and the RMS foot-height error from the start to the
+  end of the reference's first rebound.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from microg_env.trajectory import Trajectory
+
+#: Time skipped after a weight is placed before the descent is fitted, s: the PID loop settles
+#: in ~0.1 s (closed-loop pair at ~140 rad/s, damping ~0.7).
+SETTLE_S = 0.2
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One contact of the foot with the pad, with times interpolated between samples."""
+
+    start: int  # first sample in contact
+    end: int  # first sample after the pad's force has returned to zero
+    touchdown_s: float
+    liftoff_s: float
+    impact_speed_m_s: float  # downward speed at touchdown
+    exit_speed_m_s: float  # upward speed at lift-off
+
+
+def _interpolate(t0: float, t1: float, y0: float, y1: float, level: float = 0.0) -> float:
+    """Time at which y, linear between (t0, y0) and (t1, y1), reaches ``level``."""
+    return t0 if y1 == y0 else t0 + (level - y0) / (y1 - y0) * (t1 - t0)
+
+
+def contacts(traj: Trajectory) -> list[Contact]:
+    """Every contact: touchdown where the sole crosses the pad's surface, lift-off where the force ends."""
+    height, force, t, v = traj.foot_height_m, traj.pad_force_n, traj.time_s, traj.lander_velocity_m_s
+    found: list[Contact] = []
+    i = 0
+    while True:
+        crossings = np.flatnonzero((height[i:-1] >= 0.0) & (height[i + 1 :] < 0.0))
+        if crossings.size == 0:
+            return found
+        start = i + int(crossings[0]) + 1
+        pushing = np.flatnonzero(force[start:] > 0.0)
+        if pushing.size == 0:
+            return found
+        first_push = start + int(pushing[0])
+        released = np.flatnonzero(force[first_push:] <= 0.0)
+        if released.size == 0:
+            return found
+        end = first_push + int(released[0])
+        touchdown = _interpolate(t[start - 1], t[start], height[start - 1], height[start])
+        liftoff = t[end - 1]
+        if end - 2 >= first_push and force[end - 2] > force[end - 1]:
+            # The force falls to zero within the step before ``end``: extend its last slope.
+            liftoff = min(_interpolate(t[end - 2], t[end - 1], force[end - 2], force[end - 1]), t[end])
+        found.append(
+            Contact(
+                start=start,
+                end=end,
+                touchdown_s=touchdown,
+                liftoff_s=liftoff,
+                impact_speed_m_s=-float(np.interp(touchdown, t, v)),
+                exit_speed_m_s=float(np.interp(liftoff, t, v)),
+            )
+        )
+        i = end
+
+
+def stage_windows(traj: Trajectory, touchdown_index: int | None) -> list[tuple[int, int]]:
+    """Sample ranges [i0, i1) of each load stage's free fall."""
+    windows = []
+    last = len(traj) if touchdown_index is None else touchdown_index
+    for stage in range(len(traj.scenario.loads)):
+        idx = np.flatnonzero(traj.stage == stage)
+        if idx.size == 0:
+            windows.append((0, 0))
+            continue
+        start_time = traj.time_s[idx[0]] + SETTLE_S
+        i0 = int(np.searchsorted(traj.time_s, start_time))
+        i1 = min(int(idx[-1]) + 1, last)
+        windows.append((i0, max(i0, i1)))
+    return windows
+
+
+def descent_acceleration(traj: Trajectory, window: tuple[int, int]) -> float:
+    """Second derivative of a least-squares parabola through the foot height over ``window``."""
+    i0, i1 = window
+    if i1 - i0 < 10:
+        return math.nan
+    t = traj.time_s[i0:i1] - traj.time_s[i0]
+    return float(2.0 * np.polyfit(t, traj.foot_height_m[i0:i1], 2)[0])
+
+
+@dataclass(frozen=True)
+class RunMetrics:
+    """Everything ``microg run --json`` prints."""
+
+    descent_accel_m_s2: list[float]
+    ideal_descent_accel_m_s2: list[float]
+    compensation_error_pct: list[float]
+    residual_gravity_g: list[float]
+    microgravity_level_g: list[float]
+    flexible_unit_excursion_free_fall_m: float
+    flexible_unit_excursion_collision_m: float
+    support_force_variation_n: float
+    max_deformation_m: float
+    collision_accel_m_s2: float
+    contact_time_s: float
+    restitution: float
+    impact_speed_m_s: float
+    rebound_height_m: float
+    reference_max_deformation_m: float
+    reference_collision_accel_m_s2: float
+    reference_contact_time_s: float
+    reference_restitution: float
+    reference_rms_height_error_m: float
+    termination_reason: str | None
+
+    def as_dict(self) -> dict:
+        """JSON-ready: NaN (a quantity the run did not reach) becomes None."""
+
+        def clean(value):
+            if isinstance(value, list):
+                return [clean(v) for v in value]
+            if isinstance(value, float) and not math.isfinite(value):
+                return None
+            return value
+
+        return {key: clean(value) for key, value in asdict(self).items()}
+
+
+@dataclass(frozen=True)
+class LandingMetrics:
+    """The first contact and its rebound."""
+
+    max_deformation_m: float
+    collision_accel_m_s2: float
+    contact_time_s: float
+    restitution: float
+    impact_speed_m_s: float
+    rebound_height_m: float
+    rebound_end_s: float  # touchdown of the second contact (end of the first rebound)
+
+
+def landing(traj: Trajectory) -> LandingMetrics:
+    """First-contact quantities of a run (NaN where the run did not reach them)."""
+    found = contacts(traj)
+    if not found:
+        return LandingMetrics(*(math.nan,) * 7)
+    first = found[0]
+    after = slice(first.end, found[1].start if len(found) > 1 else len(traj))
+    rebound = traj.foot_height_m[after]
+    return LandingMetrics(
+        max_deformation_m=float(-traj.foot_height_m[first.start : first.end].min()),
+        collision_accel_m_s2=float(traj.lander_accel_m_s2[first.start : first.end].max()),
+        contact_time_s=first.liftoff_s - first.touchdown_s,
+        restitution=first.exit_speed_m_s / first.impact_speed_m_s,
+        impact_speed_m_s=first.impact_speed_m_s,
+        rebound_height_m=float(rebound.max()) if rebound.size else math.nan,
+        rebound_end_s=found[1].touchdown_s if len(found) > 1 else math.nan,
+    )
+
+
+def compute_metrics(traj: Trajectory, reference: Trajectory) -> RunMetrics:
+    """All metrics of ``traj``, with fidelity measured against the ideal-microgravity ``reference``."""
+    g = traj.gravity_m_s2
+    found = contacts(traj)
+    touchdown = found[0].start if found else None
+    ideal = list(traj.scenario.ideal_descent_m_s2(g))
+    measured = [descent_acceleration(traj, window) for window in stage_windows(traj, touchdown)]
+    rig, ideal_landing = landing(traj), landing(reference)
+    free_fall = slice(0, touchdown if touchdown is not None else len(traj))
+    collision = slice(found[0].start, found[0].end) if found else slice(0, 0)
+    return RunMetrics(
+        descent_accel_m_s2=measured,
+        ideal_descent_accel_m_s2=ideal,
+        compensation_error_pct=[100.0 * (a / a0 - 1.0) for a, a0 in zip(measured, ideal, strict=True)],
+        residual_gravity_g=[(a - a0) / g for a, a0 in zip(measured, ideal, strict=True)],
+        microgravity_level_g=[abs(a) / g for a in measured],
+        flexible_unit_excursion_free_fall_m=_max_abs(traj.x_m[free_fall]),
+        flexible_unit_excursion_collision_m=_max_abs(traj.x_m[collision]),
+        support_force_variation_n=_max_abs(traj.support_force_deviation_n),
+        max_deformation_m=rig.max_deformation_m,
+        collision_accel_m_s2=rig.collision_accel_m_s2,
+        contact_time_s=rig.contact_time_s,
+        restitution=rig.restitution,
+        impact_speed_m_s=rig.impact_speed_m_s,
+        rebound_height_m=rig.rebound_height_m,
+        reference_max_deformation_m=ideal_landing.max_deformation_m,
+        reference_collision_accel_m_s2=ideal_landing.collision_accel_m_s2,
+        reference_contact_time_s=ideal_landing.contact_time_s,
+        reference_restitution=ideal_landing.restitution,
+        reference_rms_height_error_m=rms_height_error(traj, reference, ideal_landing.rebound_end_s),
+        termination_reason=traj.termination_reason,
+    )
+
+
+def rms_height_error(traj: Trajectory, reference: Trajectory, until_s: float) -> float:
+    """RMS difference of foot heights from the start to ``until_s`` (or the shorter run's end)."""
+    end = min(traj.time_s[-1], reference.time_s[-1], until_s if math.isfinite(until_s) else math.inf)
+    keep = traj.time_s <= end
+    reference_height = np.interp(traj.time_s[keep], reference.time_s, reference.foot_height_m)
+    return float(np.sqrt(np.mean((traj.foot_height_m[keep] - reference_height) ** 2)))
+
+
+def _max_abs(values: np.ndarray) -> float:
+    return float(np.max(np.abs(values))) if values.size else math.nan

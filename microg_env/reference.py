@@ -1,0 +1,84 @@
+"""The ideal-microgravity reference: what the rig is meant to reproduce.
+
+The same lander and pad, no rig: the lander with the weights placed so far (mass M + m) falls in
+a uniform field m g / (M + m) from the scenario's descent height, the field and the mass changing
+when the scenario places a weight, exactly as on an ideal rig. Sampled at the control period, it
+is the yardstick of :func:`microg_env.metrics.compute_metrics`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from microg_env.model import build_pad_test, pad_contact_solref
+from microg_env.params import RigParams
+from microg_env.scenarios import Scenario
+from microg_env.trajectory import Trajectory
+
+
+def simulate_reference(
+    scenario: Scenario,
+    params: RigParams | None = None,
+    control_period_s: float = 1e-3,
+    duration_s: float | None = None,
+) -> Trajectory:
+    """Simulate the ideal landing of ``scenario`` for ``duration_s`` (default: the scenario's)."""
+    params = scenario.rig_params(RigParams() if params is None else params)
+    duration_s = scenario.duration_s if duration_s is None else duration_s
+    frame_skip = math.ceil(control_period_s / params.timestep_s - 1e-9)
+    pad_test = build_pad_test(params)
+    model = pad_test.model
+    model.opt.timestep = control_period_s / frame_skip
+    data = mujoco.MjData(model)
+    lander, pad_geom = model.body("lander").id, model.geom("pad").id
+    force_adr = int(model.sensor_adr[model.sensor("pad_force").id])
+    g, mass, pad = params.gravity_m_s2, params.lander.mass_kg, params.pad
+
+    def place(count: int) -> float:
+        placed = sum(load.mass_kg for load in scenario.loads[:count])
+        total = mass + placed
+        model.body_mass[lander] = total
+        model.opt.gravity[2] = -placed * g / total
+        model.geom_solref[pad_geom] = pad_contact_solref(
+            pad.stiffness_n_per_m, pad.damping_n_s_per_m, total, pad_test.pad_contacts, pad.impedance
+        )[0]
+        return placed
+
+    data.qpos[0] = scenario.descent_height_m
+    placed = scenario.loads_due(scenario.descent_height_m, 0)
+    placed_kg = place(placed)
+    mujoco.mj_forward(model, data)
+    steps = round(duration_s / control_period_s)
+    time, height, velocity, accel, force, load, stage = (np.zeros(steps + 1) for _ in range(7))
+    for k in range(steps + 1):
+        if k:
+            mujoco.mj_step(model, data, nstep=frame_skip)
+            if placed < len(scenario.loads):
+                due = scenario.loads_due(float(data.qpos[0]), placed)
+                if due != placed:
+                    placed, placed_kg = due, place(due)
+        time[k], height[k], velocity[k], accel[k] = data.time, data.qpos[0], data.qvel[0], data.qacc[0]
+        force[k], load[k], stage[k] = data.sensordata[force_adr], placed_kg, placed - 1
+    zeros = np.zeros(steps + 1)
+    return Trajectory(
+        scenario=scenario,
+        gravity_m_s2=g,
+        lander_mass_kg=mass,
+        time_s=time,
+        foot_height_m=height,
+        lander_velocity_m_s=velocity,
+        lander_accel_m_s2=accel,
+        x_m=zeros,
+        support_position_m=zeros,
+        support_velocity_m_s=zeros,
+        support_force_deviation_n=zeros,
+        pad_force_n=force,
+        placed_load_kg=load,
+        stage=stage.astype(int),
+        command_m_s=zeros,
+        servo_torque_n_m=zeros,
+        reward=zeros,
+    )

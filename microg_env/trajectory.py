@@ -1,0 +1,76 @@
+"""A run recorded at every control step: the one data structure metrics, plots and reports read."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from microg_env.scenarios import Scenario
+
+#: Recorded channels, all SI, up positive, one sample per control step (index 0: the reset state).
+CHANNELS = (
+    "time_s",
+    "foot_height_m",
+    "lander_velocity_m_s",
+    "lander_accel_m_s2",
+    "x_m",
+    "support_position_m",
+    "support_velocity_m_s",
+    "support_force_deviation_n",
+    "pad_force_n",
+    "placed_load_kg",
+    "stage",
+    "command_m_s",
+    "servo_torque_n_m",
+    "reward",
+)
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Sampled channels of one run plus what is needed to interpret them."""
+
+    scenario: Scenario
+    gravity_m_s2: float
+    lander_mass_kg: float
+    time_s: np.ndarray
+    foot_height_m: np.ndarray
+    lander_velocity_m_s: np.ndarray
+    lander_accel_m_s2: np.ndarray
+    x_m: np.ndarray
+    support_position_m: np.ndarray
+    support_velocity_m_s: np.ndarray
+    support_force_deviation_n: np.ndarray
+    pad_force_n: np.ndarray
+    placed_load_kg: np.ndarray
+    stage: np.ndarray
+    command_m_s: np.ndarray
+    servo_torque_n_m: np.ndarray
+    reward: np.ndarray
+    termination_reason: str | None = None
+
+    def __len__(self) -> int:
+        return int(self.time_s.size)
+
+
+class TrajectoryRecorder:
+    """Preallocated channel buffers filled from the environment's ``info`` dictionaries."""
+
+    def __init__(self, capacity: int) -> None:
+        self._buffers = {name: np.zeros(capacity) for name in CHANNELS}
+        self._count = 0
+
+    def append(self, info: dict, reward: float = 0.0) -> None:
+        k = self._count
+        for name, buffer in self._buffers.items():
+            buffer[k] = reward if name == "reward" else info[name]
+        self._count = k + 1
+
+    def finish(
+        self, scenario: Scenario, gravity_m_s2: float, lander_mass_kg: float, termination_reason: str | None = None
+    ) -> Trajectory:
+        k = self._count
+        arrays = {name: buffer[:k].copy() for name, buffer in self._buffers.items()}
+        arrays["stage"] = arrays["stage"].astype(int)
+        return Trajectory(scenario, gravity_m_s2, lander_mass_kg, termination_reason=termination_reason, **arrays)

@@ -1,0 +1,115 @@
+"""The PID baselines: the control law itself, and the paper's 1e-4 g level on the full rig."""
+
+import numpy as np
+import pytest
+
+from microg_env.controllers import PID, PIDGains, PolicyController, load_gains, make_controller
+from microg_env.env import OBSERVATION_INDEX, OBSERVATION_SCALES, MicroGravityLandingEnv
+from microg_env.evaluate import run_with_metrics
+
+GAINS = PIDGains(kp_per_s=100.0, ki_per_s2=5000.0, kd=2.0, derivative_filter_s=0.0, integral_limit_m_s=0.5)
+PERIOD = 1e-3
+
+
+def _observation(x=0.0, x_rate=0.0, support_velocity=0.0) -> np.ndarray:
+    obs = np.zeros(len(OBSERVATION_SCALES), dtype=np.float32)
+    obs[OBSERVATION_INDEX["x"]] = x / OBSERVATION_SCALES["x"]
+    obs[OBSERVATION_INDEX["x_rate"]] = x_rate / OBSERVATION_SCALES["x_rate"]
+    obs[OBSERVATION_INDEX["support_velocity"]] = support_velocity / OBSERVATION_SCALES["support_velocity"]
+    return obs
+
+
+def test_pid_law():
+    pid = PID(GAINS, PERIOD)
+    action = pid(_observation(x=1e-4, x_rate=2e-4), {})
+    expected = 100.0 * 1e-4 + 5000.0 * 1e-4 * PERIOD + 2.0 * 2e-4
+    assert action.shape == (1,)
+    assert action.dtype == np.float32
+    assert float(action[0]) * 1.25 == pytest.approx(expected, rel=1e-6)
+    second = pid(_observation(x=1e-4, x_rate=2e-4), {})  # the integral keeps adding
+    assert float(second[0]) * 1.25 == pytest.approx(expected + 5000.0 * 1e-4 * PERIOD, rel=1e-6)
+    pid.reset()
+    assert float(pid(_observation(), {})[0]) == 0.0
+
+
+def test_derivative_on_measurement_ignores_the_lander_and_uses_the_support():
+    classic, dom = PID(GAINS, PERIOD), PID(GAINS, PERIOD, derivative_on_measurement=True)
+    # A jump of the lander's velocity shows in dx/dt only: the classic D reacts, DoM does not.
+    assert float(classic(_observation(x_rate=0.01), {})[0]) != 0.0
+    assert float(dom(_observation(x_rate=0.01), {})[0]) == 0.0
+    # DoM damps the support's own motion: D = -Kd dz_support/dt.
+    dom.reset()
+    assert float(dom(_observation(support_velocity=0.01), {})[0]) * 1.25 == pytest.approx(-2.0 * 0.01, rel=1e-6)
+
+
+def test_output_is_clipped_and_the_integral_does_not_wind_up():
+    gains = PIDGains(kp_per_s=100.0, ki_per_s2=5000.0, kd=0.0, derivative_filter_s=0.0, integral_limit_m_s=1.25)
+    pid = PID(gains, PERIOD)
+    for _ in range(1000):  # x = 5 mm for a second: P gives 0.5 m/s, the integral the rest up to 1.25
+        action = pid(_observation(x=0.005), {})
+    assert float(action[0]) == 1.0
+    # Conditional integration stops the integral within one step's increment (0.025 m/s) below
+    # where the command saturates (1.25 - 0.5 m/s), instead of at its 1.25 m/s clamp.
+    assert 0.725 - 1e-9 <= pid._integral <= 0.75 + 1e-9
+
+
+def test_gains_come_from_the_config_file():
+    for name in ("pid", "pid-dom"):
+        gains = load_gains(name)
+        assert gains.kp_per_s > 0
+        assert gains.ki_per_s2 > 0
+    assert make_controller("pid-dom", PERIOD).derivative_on_measurement
+    with pytest.raises(ValueError, match="controller"):
+        make_controller("lqr", PERIOD)
+    with pytest.raises(ValueError, match="kp_per_s"):
+        PIDGains(kp_per_s=-1.0, ki_per_s2=1.0, kd=0.0, derivative_filter_s=0.0, integral_limit_m_s=1.0)
+
+
+def test_policy_controller_wraps_predict():
+    class Constant:
+        def predict(self, observation, deterministic=True):
+            return np.array([0.25]), None
+
+    controller = PolicyController(Constant())
+    controller.reset()
+    assert controller(_observation(), {}).tolist() == [0.25]
+
+
+@pytest.fixture(scope="module")
+def pid_runs():
+    """The tuned PID on the paper's three conditions, every imperfection on (30 s each)."""
+    runs = {}
+    for number in (1, 2, 3):
+        env = MicroGravityLandingEnv(condition=number)
+        runs[number] = run_with_metrics(env, make_controller("pid", env.control_period_s), seed=0)[2]
+    return runs
+
+
+def test_pid_reaches_the_1e_4_g_level_in_condition_3(pid_runs):
+    metrics = pid_runs[3]
+    assert metrics.termination_reason is None
+    level = metrics.microgravity_level_g[0]  # the 50 g stage
+    assert 0.5e-4 <= level <= 1.5e-4
+    assert abs(metrics.compensation_error_pct[0]) <= 5.0
+    assert abs(metrics.compensation_error_pct[1]) <= 5.0
+
+
+@pytest.mark.parametrize("number", [1, 2])
+def test_pid_conditions_1_and_2_within_2_percent(pid_runs, number):
+    metrics = pid_runs[number]
+    assert metrics.termination_reason is None
+    assert abs(metrics.compensation_error_pct[0]) <= 2.0
+
+
+@pytest.mark.parametrize("number", [1, 2, 3])
+def test_pid_peak_deformation_within_3_percent_of_ideal_microgravity(pid_runs, number):
+    metrics = pid_runs[number]
+    assert metrics.max_deformation_m == pytest.approx(metrics.reference_max_deformation_m, rel=0.03)
+
+
+def test_pid_dom_meets_the_same_targets():
+    env = MicroGravityLandingEnv(condition=3)
+    metrics = run_with_metrics(env, make_controller("pid-dom", env.control_period_s), seed=1)[2]
+    assert metrics.termination_reason is None
+    assert 0.5e-4 <= metrics.microgravity_level_g[0] <= 1.5e-4
+    assert metrics.max_deformation_m == pytest.approx(metrics.reference_max_deformation_m, rel=0.03)

@@ -1,0 +1,125 @@
+"""Metrics against closed forms, on synthetic trajectories and on the ideal reference."""
+
+import math
+
+import numpy as np
+import pytest
+
+from microg_env.contact import SpringDamperContact
+from microg_env.metrics import compute_metrics, contacts, descent_acceleration, landing, stage_windows
+from microg_env.reference import simulate_reference
+from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
+from microg_env.trajectory import CHANNELS, Trajectory
+
+DT = 1e-3
+SCENARIO = Scenario("synthetic", (LoadStep(0.49),), descent_height_m=0.09)
+
+
+def _trajectory(time, height, velocity, accel, force, stage=None, x=None) -> Trajectory:
+    n = time.size
+    arrays = dict.fromkeys(CHANNELS)
+    arrays |= {name: np.zeros(n) for name in CHANNELS}
+    arrays |= {
+        "time_s": time,
+        "foot_height_m": height,
+        "lander_velocity_m_s": velocity,
+        "lander_accel_m_s2": accel,
+        "pad_force_n": force,
+        "stage": np.zeros(n, dtype=int) if stage is None else stage,
+    }
+    if x is not None:
+        arrays["x_m"] = x
+    return Trajectory(SCENARIO, 9.8009, 620.0, **arrays)
+
+
+def _free_contact(speed: float = 0.04, approach_s: float = 0.5, after_s: float = 2.0) -> Trajectory:
+    """Flight at constant speed, the Section 2 contact, flight at the exit speed (no field)."""
+    contact = SpringDamperContact(620.0, 4666.0, 200.0)
+    t = np.arange(0.0, approach_s + contact.contact_time_s + after_s, DT)
+    tc = t - approach_s
+    during = (tc >= 0) & (tc <= contact.contact_time_s)
+    after = tc > contact.contact_time_s
+    d = np.where(during, contact.deformation(np.clip(tc, 0, None), speed), 0.0)
+    rate = np.where(during, contact.deformation_rate(np.clip(tc, 0, None), speed), 0.0)
+    exit_speed = contact.restitution * speed
+    d_end = contact.deformation(contact.contact_time_s, speed)
+    height = np.where(tc < 0, -speed * tc, -d)
+    height = np.where(after, -d_end + exit_speed * (tc - contact.contact_time_s), height)
+    velocity = np.where(tc < 0, -speed, -rate)
+    velocity = np.where(after, exit_speed, velocity)
+    force = np.where(during, np.maximum(contact.force(d, rate), 0.0), 0.0)
+    return _trajectory(t, height, velocity, force / 620.0, force)
+
+
+def test_descent_acceleration_of_a_parabola():
+    t = np.arange(0.0, 3.0, DT)
+    height = 0.09 + 0.001 * t - 0.5 * 0.00774 * t**2
+    traj = _trajectory(t, height, np.gradient(height, t), np.zeros_like(t), np.zeros_like(t))
+    assert descent_acceleration(traj, (100, t.size)) == pytest.approx(-0.00774, rel=1e-9)
+    assert math.isnan(descent_acceleration(traj, (100, 105)))
+
+
+def test_contact_metrics_of_the_section_2_contact():
+    contact = SpringDamperContact(620.0, 4666.0, 200.0)
+    traj = _free_contact(speed=0.04)
+    (found,) = contacts(traj)
+    assert found.touchdown_s == pytest.approx(0.5, abs=1e-9)
+    first = landing(traj)
+    assert first.contact_time_s == pytest.approx(contact.contact_time_s, abs=2 * DT)
+    assert first.restitution == pytest.approx(contact.restitution, rel=1e-3)
+    assert first.impact_speed_m_s == pytest.approx(0.04)
+    assert first.max_deformation_m == pytest.approx(contact.max_deformation_m(0.04), rel=1e-4)
+    assert first.collision_accel_m_s2 == pytest.approx(contact.max_deceleration_m_s2(0.04), rel=1e-4)
+    assert math.isnan(first.rebound_end_s)
+
+
+def test_stage_windows_skip_the_settling_and_stop_at_touchdown():
+    t = np.arange(0.0, 4.0, DT)
+    stage = (t >= 1.0).astype(int)
+    traj = _trajectory(t, np.full_like(t, 0.05), np.zeros_like(t), np.zeros_like(t), np.zeros_like(t), stage)
+    traj = Trajectory(**{**traj.__dict__, "scenario": CONDITIONS[3]})
+    (a0, a1), (b0, b1) = stage_windows(traj, touchdown_index=3000)
+    assert t[a0] == pytest.approx(0.2)
+    assert a1 == 1000
+    assert t[b0] == pytest.approx(1.2)
+    assert b1 == 3000
+
+
+@pytest.mark.parametrize("number", [1, 2, 3])
+def test_reference_falls_at_the_ideal_acceleration_of_each_stage(number):
+    scenario = CONDITIONS[number]
+    reference = simulate_reference(scenario, duration_s=12.0)
+    metrics = compute_metrics(reference, reference)
+    for measured, ideal in zip(metrics.descent_accel_m_s2, metrics.ideal_descent_accel_m_s2, strict=True):
+        assert measured == pytest.approx(ideal, rel=1e-6)
+    assert metrics.reference_rms_height_error_m == 0.0
+    assert metrics.max_deformation_m == metrics.reference_max_deformation_m
+    # The foot meets the pad at the speed of the ideal free fall: v^2 = 2 sum(a_i h_i).
+    heights = [scenario.descent_height_m] + [load.height_m for load in scenario.loads[1:]] + [0.0]
+    drops = -np.diff(heights)
+    expected = math.sqrt(2.0 * sum(-a * h for a, h in zip(metrics.ideal_descent_accel_m_s2, drops, strict=True)))
+    assert metrics.impact_speed_m_s == pytest.approx(expected, rel=1e-3)
+
+
+def test_metrics_json_has_the_required_keys_and_no_nan():
+    reference = simulate_reference(CONDITIONS[1], duration_s=3.0)  # ends before touchdown
+    result = compute_metrics(reference, reference).as_dict()
+    required = {
+        "descent_accel_m_s2",
+        "ideal_descent_accel_m_s2",
+        "compensation_error_pct",
+        "residual_gravity_g",
+        "flexible_unit_excursion_free_fall_m",
+        "flexible_unit_excursion_collision_m",
+        "support_force_variation_n",
+        "max_deformation_m",
+        "collision_accel_m_s2",
+        "contact_time_s",
+        "restitution",
+        "rebound_height_m",
+        "reference_max_deformation_m",
+        "reference_rms_height_error_m",
+    }
+    assert required <= set(result)
+    assert result["max_deformation_m"] is None  # never landed: null, not NaN
+    assert isinstance(result["descent_accel_m_s2"], list)

@@ -1,0 +1,87 @@
+"""Tune the PID baselines by simulation; the result goes into microg_env/config/controllers.toml.
+
+Method (README, "Controllers"):
+
+1. Structure: v = Kp x + Ki integral(x) + D on the grating ruler's x, commanding the drive's speed.
+2. Steady state: in a free fall at constant acceleration the loop holds x at F / (k + M Ki), so the
+   compensation error is 1 / (1 + Ki / w0^2), w0^2 = k / M = 58 s^-2 (k: QZS + balancer stiffness).
+   Ki sets it: 5800 s^-2 for 1 %, 29000 s^-2 for 0.2 %.
+3. Dynamics: with an ideal drive the x loop is (1 + Kd) s^2 + Kp s + (Ki + w0^2) for the derivative
+   of the error; the derivative on the support's measured speed instead divides Kp and Ki by
+   1 + Kd. Kp is set for a damping ratio zeta of that pair (Ki scaled by 1 + Kd for pid-dom, so
+   both variants have the same steady state).
+4. Robustness: the drive's 100 Hz speed loop, one control period of command delay and the
+   zero-order hold cost phase, so each candidate must also stay stable with every gain doubled
+   (gain margin >= 2), on every condition, with every imperfection on.
+5. Choice: among robust candidates, the lowest cost J = mean |compensation error| [%] over the
+   load stages of conditions 1-3 + (flexible-unit excursion at collision [um]) / 10, seed 0.
+
+Run: ``python training/tune_pid.py`` (about three minutes on two cores). It prints every
+candidate and the best gains of ``pid`` and ``pid-dom``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import sys
+from dataclasses import replace
+
+import numpy as np
+
+from microg_env.controllers import PID, PIDGains
+from microg_env.env import MicroGravityLandingEnv
+from microg_env.evaluate import run_with_metrics
+
+KI_GRID = (5_000.0, 10_000.0, 20_000.0, 30_000.0)
+ZETA_GRID = (0.7, 1.0, 1.4)
+KD_GRID = {"pid": (0.0, 1.0, 2.0), "pid-dom": (0.05, 0.2, 0.5)}
+OMEGA0_SQUARED = 58.1  # k / M for the paper's rig, s^-2
+BASE = PIDGains(kp_per_s=0.0, ki_per_s2=0.0, kd=0.0, derivative_filter_s=0.002, integral_limit_m_s=1.25)
+
+
+def cost(gains: PIDGains, dom: bool, envs: list[MicroGravityLandingEnv]) -> tuple[float, float, float]:
+    """(J, mean |compensation error| %, worst collision excursion um); J = inf if a run fails."""
+    errors, excursions = [], []
+    for env in envs:
+        controller = PID(gains, env.control_period_s, derivative_on_measurement=dom)
+        _, _, metrics = run_with_metrics(env, controller, seed=0)
+        if metrics.termination_reason is not None or not all(map(math.isfinite, metrics.compensation_error_pct)):
+            return math.inf, math.nan, math.nan
+        errors += [abs(e) for e in metrics.compensation_error_pct]
+        excursions.append(metrics.flexible_unit_excursion_collision_m * 1e6)
+    mean_error, excursion = float(np.mean(errors)), float(max(excursions))
+    return mean_error + excursion / 10.0, mean_error, excursion
+
+
+def robust(gains: PIDGains, dom: bool, envs: list[MicroGravityLandingEnv]) -> bool:
+    doubled = replace(gains, kp_per_s=2 * gains.kp_per_s, ki_per_s2=2 * gains.ki_per_s2, kd=2 * gains.kd)
+    return math.isfinite(cost(doubled, dom, envs)[0])
+
+
+def main() -> int:
+    envs = [MicroGravityLandingEnv(condition=c) for c in (1, 2, 3)]
+    for name, kd_grid in KD_GRID.items():
+        dom = name == "pid-dom"
+        results = []
+        for ki, zeta, kd in itertools.product(KI_GRID, ZETA_GRID, kd_grid):
+            if dom:  # -Kd dz_support/dt divides the loop's gains by 1 + Kd: scale them back up
+                kp, ki_set = 2.0 * zeta * math.sqrt(ki + OMEGA0_SQUARED) * (1.0 + kd), ki * (1.0 + kd)
+            else:  # (1 + Kd) s^2 + Kp s + Ki + w0^2
+                kp, ki_set = 2.0 * zeta * math.sqrt((1.0 + kd) * (ki + OMEGA0_SQUARED)), ki
+            gains = replace(BASE, kp_per_s=round(kp, 1), ki_per_s2=round(ki_set), kd=kd)
+            j, error, excursion = cost(gains, dom, envs)
+            ok = math.isfinite(j) and robust(gains, dom, envs)
+            results.append((j if ok else math.inf, gains))
+            print(
+                f"{name:8s} Kp {gains.kp_per_s:7.1f} Ki {gains.ki_per_s2:8.0f} Kd {kd:4.2f} zeta {zeta:3.1f}: "
+                f"J {j:7.3f}  |err| {error:6.3f} %  collision x {excursion:6.2f} um  robust {ok}",
+                flush=True,
+            )
+        best = min(results, key=lambda item: item[0])
+        print(f"best {name}: {best[1]} (J = {best[0]:.3f})", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
