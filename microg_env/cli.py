@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
+from microg_env.calibration import pad_values
 from microg_env.controllers import CONTROLLER_NAMES
 from microg_env.drop import DropReport, drop_test
 from microg_env.imperfections import Imperfections
@@ -64,7 +65,10 @@ def _print_drop(report: DropReport) -> None:
 
 
 def _cmd_drop(args: argparse.Namespace) -> int:
-    report = drop_test(args.mass, args.stiffness, args.damping, args.velocity)
+    stiffness, damping = pad_values(args.pad)
+    stiffness = stiffness if args.stiffness is None else args.stiffness
+    damping = damping if args.damping is None else args.damping
+    report = drop_test(args.mass, stiffness, damping, args.velocity)
     if args.json:
         print(json.dumps(report.as_dict(), indent=2))
     else:
@@ -93,7 +97,10 @@ def write_atomically(path: Path, text: str) -> None:
 def _cmd_export_mjcf(args: argparse.Namespace) -> int:
     from microg_env.model import build_spec
 
-    spec, _ = build_spec(RigParams(), tuple(args.load))
+    stiffness, damping = pad_values(args.pad)
+    params = RigParams()
+    params = replace(params, pad=replace(params.pad, stiffness_n_per_m=stiffness, damping_n_s_per_m=damping))
+    spec, _ = build_spec(params, tuple(args.load))
     spec.compile()
     write_atomically(Path(args.output), spec.to_xml())
     print(f"wrote {args.output}")
@@ -110,7 +117,8 @@ def _load_step(text: str) -> LoadStep:
 
 
 def _scenario(args: argparse.Namespace) -> Scenario:
-    scenario = condition(args.condition)
+    stiffness, damping = pad_values(args.pad)
+    scenario = replace(condition(args.condition), pad_stiffness_n_per_m=stiffness, pad_damping_n_s_per_m=damping)
     if args.load:
         scenario = replace(scenario, name="custom", loads=tuple(args.load))
     if args.height is not None:
@@ -132,6 +140,8 @@ def _print_run(scenario: Scenario, args: argparse.Namespace, m: RunMetrics) -> N
     )
     print(
         f"{scenario.name}: loads {loads}; descent from {scenario.descent_height_m * 1e3:g} mm; "
+        f"{args.pad} pad (K = {scenario.pad_stiffness_n_per_m:.1f} N/m, "
+        f"D = {scenario.pad_damping_n_s_per_m:.1f} N s/m); "
         f"controller {args.controller}; seed {args.seed}; {scenario.duration_s:g} s at "
         f"{args.control_period:g} us; imperfections {'off' if args.ideal else 'on'}"
     )
@@ -194,6 +204,73 @@ def _check_writable(path: Path) -> None:
         raise UsageError(f"microg: error: cannot write {path}: folder {directory} is missing or not writable")
 
 
+def _add_pad_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--pad",
+        choices=("paper", "calibrated"),
+        default="paper",
+        help="the pad: Table 1's K and D (paper) or K and D fitted to the experiments (calibrated)",
+    )
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from microg_env.calibration import calibrate
+    from microg_env.paper import CONDITIONS as PAPER
+    from microg_env.report import paper_residuals
+
+    result = calibrate()
+    if args.json:
+        print(json.dumps(result.as_dict(), indent=2))
+        return 0
+    print(
+        f"Pad calibrated to the paper's experiments (Tables 5-6, actual) by least squares: "
+        f"K = {result.stiffness_n_per_m:.1f} N/m, D = {result.damping_n_s_per_m:.1f} N s/m "
+        f"({result.iterations} iterations; Table 1: 4666 N/m, 200 N s/m)"
+    )
+    paper_deformation, paper_acceleration = paper_residuals()
+    print(f"{'residual, model - experiment, % of experiment':<48}{'cond. 1':>10}{'cond. 2':>10}{'cond. 3':>10}")
+    rows = (
+        ("peak deformation, calibrated", result.max_deformation_pct),
+        ("peak deformation, the paper's simulation", paper_deformation),
+        ("collision acceleration, calibrated", result.collision_accel_pct),
+        ("collision acceleration, the paper's simulation", paper_acceleration),
+    )
+    for label, values in rows:
+        print(f"  {label:<46}" + "".join(f"{v:>+10.2f}" for v in values))
+    measured = ", ".join(
+        f"{c.measured_max_deformation_mm:g} mm / {c.measured_collision_accel_mm_s2:g} mm/s^2" for c in PAPER.values()
+    )
+    print(f"experiments (deformation / acceleration): {measured}; RMS residual {result.rms_residual_pct:.2f} %")
+    return 0
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from microg_env import report
+
+    if args.duration is not None and not 0 < args.duration <= 600:
+        raise ValueError(f"duration must be in (0, 600] s, got {args.duration!r}")
+    out = Path(args.out)
+    report.check_output(out)
+    duration = 30.0 if args.duration is None else args.duration
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        raise ValueError("microg reproduce needs the report extra: pip install 'microg-env[report]'") from None
+    report.figure_class()  # fail now, not after the runs, if matplotlib is missing
+    with tqdm(
+        total=report.total_steps(duration),
+        unit="step",
+        unit_scale=True,
+        desc="reproduce",
+        file=sys.stderr,
+        disable=args.quiet,
+    ) as bar:
+        reproduction = report.compute(duration_s=duration, seed=args.seed, progress=bar.update)
+    report.write(reproduction, out)
+    print(f"wrote {out / 'report.md'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="microg", description="MuJoCo model of the QZS microgravity landing rig (Jia et al. 2024).")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -206,12 +283,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     defaults = RigParams()
     drop.add_argument("--mass", type=_float, default=defaults.lander.mass_kg, metavar="KG", help="lander mass")
-    drop.add_argument(
-        "--stiffness", type=_float, default=defaults.pad.stiffness_n_per_m, metavar="N_PER_M", help="pad stiffness K"
-    )
-    drop.add_argument(
-        "--damping", type=_float, default=defaults.pad.damping_n_s_per_m, metavar="N_S_PER_M", help="pad damping D"
-    )
+    drop.add_argument("--stiffness", type=_float, metavar="N_PER_M", help="pad stiffness K (default: --pad's)")
+    drop.add_argument("--damping", type=_float, metavar="N_S_PER_M", help="pad damping D (default: --pad's)")
+    _add_pad_option(drop)
     drop.add_argument("--velocity", type=_float, default=0.0373, metavar="M_PER_S", help="impact speed")
     drop.add_argument("--json", action="store_true", help="print one JSON object")
     drop.set_defaults(handler=_cmd_drop)
@@ -240,9 +314,31 @@ def build_parser() -> argparse.ArgumentParser:
         "--control-period", type=_float, default=1000.0, metavar="US", help="control period (paper: 1000/500/200/100)"
     )
     run.add_argument("--ideal", action="store_true", help="switch every imperfection off")
+    _add_pad_option(run)
     run.add_argument("--json", action="store_true", help="print one JSON object of metrics")
     run.add_argument("--plot", metavar="FILE", help="write height, x, acceleration and pad force over time (PNG)")
     run.set_defaults(handler=_cmd_run)
+
+    reproduce = commands.add_parser(
+        "reproduce",
+        help="reproduce the paper's figures and tables beside this model's (the main job)",
+        description="Run conditions 1-3 with the PID baseline, with Table 1's pad and with the calibrated pad, and "
+        "write a Markdown report with the equivalents of the paper's Figures 3-7 and Tables 3-6.",
+    )
+    reproduce.add_argument("--out", default="results/reproduction", metavar="DIR", help="report folder (replaced)")
+    reproduce.add_argument("--duration", type=_float, metavar="S", help="simulated time per condition (default 30)")
+    reproduce.add_argument("--seed", type=int, default=0, help="seed of sensor noise and drift")
+    reproduce.add_argument("--quiet", action="store_true", help="no progress bar")
+    reproduce.set_defaults(handler=_cmd_reproduce)
+
+    calibrate = commands.add_parser(
+        "calibrate",
+        help="fit the pad's K and D to the paper's experiments",
+        description="Fit the pad's effective stiffness and damping by least squares to the experimental peak "
+        "deformations and collision accelerations of Tables 5-6, and print the fit and its residuals.",
+    )
+    calibrate.add_argument("--json", action="store_true", help="print one JSON object")
+    calibrate.set_defaults(handler=_cmd_calibrate)
 
     export = commands.add_parser(
         "export-mjcf",
@@ -251,6 +347,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     export.add_argument("output", metavar="FILE", help="MJCF file to write")
     export.add_argument("--load", type=_float, action="append", default=[], metavar="KG", help="add a test weight")
+    _add_pad_option(export)
     export.set_defaults(handler=_cmd_export_mjcf)
     return parser
 

@@ -9,7 +9,7 @@ from pathlib import Path
 from microg_env.trajectory import Trajectory
 
 
-def _figure_class():
+def figure_class():
     try:
         from matplotlib.figure import Figure
     except ImportError:
@@ -32,7 +32,7 @@ def save_figure(figure, path: Path) -> None:
 
 def plot_run(trajectory: Trajectory, reference: Trajectory, title: str, path: Path) -> None:
     """Foot height, x, lander acceleration and pad force over time, the ideal reference dashed."""
-    figure = _figure_class()(figsize=(9, 8), layout="constrained")
+    figure = figure_class()(figsize=(9, 8), layout="constrained")
     axes = figure.subplots(4, 1, sharex=True)
     t, tr = trajectory.time_s, reference.time_s
     axes[0].plot(t, trajectory.foot_height_m * 1e3, label="rig")

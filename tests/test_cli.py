@@ -3,16 +3,19 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import mujoco
 import pytest
 
 from microg_env.cli import main
 
+REPO = Path(__file__).resolve().parents[1]
 
-def _run(*args: str, cwd=None) -> subprocess.CompletedProcess:
+
+def _run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "microg_env.cli", *args], capture_output=True, text=True, cwd=cwd, check=False
+        [sys.executable, "-m", "microg_env.cli", *args], capture_output=True, text=True, cwd=REPO, check=False
     )
 
 
@@ -70,6 +73,12 @@ def test_drop_table_names_the_quantities(capsys):
         (["run", "--duration", "0"], "duration_s"),
         (["run", "--control-period", "0"], "control_period_s"),
         (["run", "--plot", "/nonexistent-folder/run.png"], "nonexistent-folder"),
+        (["run", "--pad", "foam"], "--pad"),
+        (["reproduce", "--out", "/nonexistent-folder/reproduction"], "nonexistent-folder"),
+        (["reproduce", "--duration", "-1"], "duration"),
+        (["reproduce", "--out", "."], "not a report"),
+        (["reproduce", "--seed", "x"], "--seed"),
+        (["calibrate", "--bogus"], "--bogus"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(args, word):

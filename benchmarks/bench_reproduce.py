@@ -1,0 +1,58 @@
+"""Wall time of ``microg reproduce`` (the issue's target: under 20 s on a 2-core machine).
+
+Times the whole command in this process (calibration, six 30 s runs with their references and
+metrics, the report and its five figures), reporting the median of several repeats, beside one
+30 s ``run_episode`` of condition 1 measured in the same process as the baseline.
+
+Usage: ``python benchmarks/bench_reproduce.py [--repeats N]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from microg_env.calibration import calibrated_pad
+from microg_env.cli import main as microg
+from microg_env.controllers import make_controller
+from microg_env.env import MicroGravityLandingEnv
+from microg_env.evaluate import run_episode
+
+
+def _median_seconds(function, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    env = MicroGravityLandingEnv(condition=1)
+    controller = make_controller("pid", env.control_period_s)
+    baseline = _median_seconds(lambda: run_episode(env, controller, seed=0), args.repeats)
+    with tempfile.TemporaryDirectory() as folder:
+        out = str(Path(folder) / "reproduction")
+
+        def reproduce() -> None:
+            calibrated_pad.cache_clear()  # count the calibration every time, as a fresh process does
+            assert microg(["reproduce", "--out", out, "--quiet"]) == 0
+
+        total = _median_seconds(reproduce, args.repeats)
+    print(
+        f"microg reproduce: {total:.2f} s (median of {args.repeats}); one 30 s episode: {baseline:.3f} s; "
+        f"ratio {total / baseline:.1f}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

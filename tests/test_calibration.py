@@ -1,0 +1,74 @@
+"""Calibration of the pad to the paper's experiments (Tables 5 and 6)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from microg_env.calibration import LandingModel, calibrate, impact_speed_m_s, paper_targets, with_pad
+from microg_env.cli import main
+from microg_env.metrics import compute_metrics
+from microg_env.paper import WORST_COLLISION_ERROR_PCT, WORST_DEFORMATION_ERROR_PCT
+from microg_env.reference import simulate_reference
+from microg_env.scenarios import CONDITIONS
+
+
+@pytest.fixture(scope="module")
+def fit():
+    return calibrate()
+
+
+def test_fit_is_within_the_papers_worst_errors(fit):
+    assert max(abs(v) for v in fit.max_deformation_pct) <= WORST_DEFORMATION_ERROR_PCT
+    assert max(abs(v) for v in fit.collision_accel_pct) <= WORST_COLLISION_ERROR_PCT
+    assert 4666.0 < fit.stiffness_n_per_m < 20000.0  # the experiments need a stiffer pad than Table 1's
+
+
+def test_fit_is_a_least_squares_minimum(fit):
+    models = [LandingModel(CONDITIONS[n]) for n in (1, 2, 3)]
+    deformation, acceleration = paper_targets("experiment")
+
+    def cost(stiffness, damping):
+        landing = np.array([m.land(stiffness, damping) for m in models]) * 1e3
+        residuals = np.concatenate([landing[:, 0] / deformation - 1, landing[:, 1] / acceleration - 1]) * 100
+        return float(residuals @ residuals)
+
+    k, d = fit.stiffness_n_per_m, fit.damping_n_s_per_m
+    best = cost(k, d)
+    assert best == pytest.approx(fit.rms_residual_pct**2 * 6, rel=1e-6)
+    for dk, dd in ((1.01, 1.0), (0.99, 1.0), (1.0, 1.03), (1.0, 0.97)):
+        assert cost(k * dk, d * dd) > best
+
+
+def test_landing_model_matches_the_reference_landing():
+    scenario = CONDITIONS[3]
+    reference = simulate_reference(scenario, duration_s=12.0)
+    metrics = compute_metrics(reference, reference)
+    depth, peak = LandingModel(scenario).land(scenario.pad_stiffness_n_per_m, scenario.pad_damping_n_s_per_m)
+    assert depth == pytest.approx(metrics.max_deformation_m, rel=2e-3)
+    assert peak == pytest.approx(metrics.collision_accel_m_s2, rel=2e-3)
+    assert impact_speed_m_s(scenario, 9.8009) == pytest.approx(metrics.impact_speed_m_s, rel=1e-3)
+
+
+def test_with_pad_names_the_bad_pad():
+    assert with_pad(CONDITIONS[1], "paper").pad_stiffness_n_per_m == 4666.0
+    with pytest.raises(ValueError, match="pad"):
+        with_pad(CONDITIONS[1], "foam")
+
+
+def test_calibrate_json(capsys, fit):
+    assert main(["calibrate", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert set(result) == {"stiffness_n_per_m", "damping_n_s_per_m", "residuals"}
+    assert set(result["residuals"]) == {"max_deformation_pct", "collision_accel_pct"}
+    assert len(result["residuals"]["max_deformation_pct"]) == 3
+    assert result["stiffness_n_per_m"] == pytest.approx(fit.stiffness_n_per_m)
+    assert result["residuals"]["collision_accel_pct"] == pytest.approx(list(fit.collision_accel_pct))
+
+
+def test_calibrated_pad_is_selectable(capsys, fit):
+    assert main(["drop", "--pad", "calibrated", "--json"]) == 0
+    drop = json.loads(capsys.readouterr().out)
+    assert drop["fitted_stiffness_n_per_m"]["analytic"] == pytest.approx(fit.stiffness_n_per_m)
+    assert main(["run", "--pad", "calibrated", "--duration", "2"]) == 0
+    assert f"K = {fit.stiffness_n_per_m:.1f} N/m" in capsys.readouterr().out
