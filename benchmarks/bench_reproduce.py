@@ -10,11 +10,11 @@ Usage: ``python benchmarks/bench_reproduce.py [--repeats N]``.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+from timing import median_seconds
 
 from microg_env.calibration import calibrated_pad
 from microg_env.cli import main as microg
@@ -23,22 +23,13 @@ from microg_env.env import MicroGravityLandingEnv
 from microg_env.evaluate import run_episode
 
 
-def _median_seconds(function, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
     env = MicroGravityLandingEnv(condition=1)
     controller = make_controller("pid", env.control_period_s)
-    baseline = _median_seconds(lambda: run_episode(env, controller, seed=0), args.repeats)
+    baseline = median_seconds(lambda: run_episode(env, controller, seed=0), args.repeats)
     with tempfile.TemporaryDirectory() as folder:
         out = str(Path(folder) / "reproduction")
 
@@ -46,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
             calibrated_pad.cache_clear()  # count the calibration every time, as a fresh process does
             assert microg(["reproduce", "--out", out, "--quiet"]) == 0
 
-        total = _median_seconds(reproduce, args.repeats)
+        total = median_seconds(reproduce, args.repeats)
     print(
         f"microg reproduce: {total:.2f} s (median of {args.repeats}); one 30 s episode: {baseline:.3f} s; "
         f"ratio {total / baseline:.1f}"

@@ -15,24 +15,14 @@ Usage: ``python benchmarks/bench_run.py [--repeats N]``.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 
 import mujoco
+from timing import median_seconds
 
 from microg_env.controllers import make_controller
 from microg_env.env import MicroGravityLandingEnv
 from microg_env.evaluate import run_episode, run_with_metrics
-
-
-def _median_seconds(function, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -43,12 +33,12 @@ def main(argv: list[str] | None = None) -> int:
     for number in (1, 2, 3):
         env = MicroGravityLandingEnv(condition=number)
         controller = make_controller("pid", env.control_period_s)
-        episode = _median_seconds(lambda env=env, c=controller: run_episode(env, c, seed=0), args.repeats)
-        full = _median_seconds(lambda env=env, c=controller: run_with_metrics(env, c, seed=0), args.repeats)
+        episode = median_seconds(lambda env=env, c=controller: run_episode(env, c, seed=0), args.repeats)
+        full = median_seconds(lambda env=env, c=controller: run_with_metrics(env, c, seed=0), args.repeats)
         steps = round(env.active_scenario.duration_s / env.control_period_s) * env.frame_skip
         data = mujoco.MjData(env.model)
         env.rig.reset(data, env.active_scenario.descent_height_m)
-        bare = _median_seconds(lambda m=env.model, d=data, n=steps: mujoco.mj_step(m, d, nstep=n), args.repeats)
+        bare = median_seconds(lambda m=env.model, d=data, n=steps: mujoco.mj_step(m, d, nstep=n), args.repeats)
         print(f"{number:<10}{episode:>13.3f}{full:>10.3f}{bare:>18.3f}{episode / bare:>14.1f}")
     return 0
 

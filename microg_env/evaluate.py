@@ -20,11 +20,12 @@ def run_episode(
     controller: Controller,
     seed: int | None = None,
     duration_s: float | None = None,
-    on_step: Callable[[int, int], None] | None = None,
+    on_progress: Callable[[int], None] | None = None,
 ) -> Trajectory:
     """Reset ``env`` with ``seed`` and let ``controller`` drive it for ``duration_s`` (default: the scenario's).
 
-    Stops early if the episode terminates. ``on_step(done, total)`` is called every 1000 steps.
+    Stops early if the episode terminates. ``on_progress(steps)`` reports the steps run, every
+    1000 and, at the end, the rest of the planned steps (so a progress bar ends full).
     """
     obs, info = env.reset(seed=seed)
     controller.reset()
@@ -32,15 +33,18 @@ def run_episode(
     steps = round(duration_s / env.control_period_s)
     recorder = TrajectoryRecorder(steps + 1)
     recorder.append(info)
-    reason = None
+    reason, reported = None, 0
     for k in range(steps):
         obs, reward, terminated, _, info = env.step(controller(obs, info))
         recorder.append(info, reward)
         if terminated:
             reason = info["termination_reason"]
             break
-        if on_step is not None and (k + 1) % 1000 == 0:
-            on_step(k + 1, steps)
+        if on_progress is not None and (k + 1) % 1000 == 0:
+            on_progress(1000)
+            reported += 1000
+    if on_progress is not None:
+        on_progress(steps - reported)
     return recorder.finish(env.active_scenario, env.params.gravity_m_s2, env.params.lander.mass_kg, reason)
 
 

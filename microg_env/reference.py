@@ -62,23 +62,15 @@ def simulate_reference(
                     placed, placed_kg = due, place(due)
         time[k], height[k], velocity[k], accel[k] = data.time, data.qpos[0], data.qvel[0], data.qacc[0]
         force[k], load[k], stage[k] = data.sensordata[force_adr], placed_kg, placed - 1
-    zeros = np.zeros(steps + 1)
-    return Trajectory(
-        scenario=scenario,
-        gravity_m_s2=g,
-        lander_mass_kg=mass,
+    return Trajectory.from_channels(
+        scenario,
+        g,
+        mass,
         time_s=time,
         foot_height_m=height,
         lander_velocity_m_s=velocity,
         lander_accel_m_s2=accel,
-        x_m=zeros,
-        support_position_m=zeros,
-        support_velocity_m_s=zeros,
-        support_force_deviation_n=zeros,
         pad_force_n=force,
         placed_load_kg=load,
-        stage=stage.astype(int),
-        command_m_s=zeros,
-        servo_torque_n_m=zeros,
-        reward=zeros,
+        stage=stage,
     )

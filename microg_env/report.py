@@ -89,16 +89,7 @@ def compute(duration_s: float = 30.0, seed: int = 0, progress: Callable[[int], N
             scenario = replace(CONDITIONS[number], pad_stiffness_n_per_m=stiffness, pad_damping_n_s_per_m=damping)
             env = MicroGravityLandingEnv(scenario=scenario)
             controller = make_controller("pid", env.control_period_s)
-            last = [0]
-
-            def on_step(done: int, total: int, last=last) -> None:
-                if progress is not None:
-                    progress(done - last[0])
-                last[0] = done
-
-            trajectory = run_episode(env, controller, seed=seed, duration_s=duration_s, on_step=on_step)
-            if progress is not None:
-                progress(round(duration_s / env.control_period_s) - last[0])
+            trajectory = run_episode(env, controller, seed=seed, duration_s=duration_s, on_progress=progress)
             reference = simulate_reference(scenario, env.base_params, env.control_period_s, trajectory.time_s[-1])
             runs[pad, number] = ConditionRun(trajectory, reference, compute_metrics(trajectory, reference))
     return Reproduction(runs, calibration, simulation_fit, pads, duration_s, seed, "pid")

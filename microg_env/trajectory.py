@@ -53,6 +53,16 @@ class Trajectory:
     def __len__(self) -> int:
         return int(self.time_s.size)
 
+    @classmethod
+    def from_channels(
+        cls, scenario: Scenario, gravity_m_s2: float, lander_mass_kg: float, **channels: np.ndarray
+    ) -> Trajectory:
+        """A trajectory of the given channels, every other one zero (e.g. a landing with no rig)."""
+        size = len(channels["time_s"])
+        arrays = {name: np.zeros(size) for name in CHANNELS} | channels
+        arrays["stage"] = np.asarray(arrays["stage"]).astype(int)
+        return cls(scenario, gravity_m_s2, lander_mass_kg, **arrays)
+
 
 class TrajectoryRecorder:
     """Preallocated channel buffers filled from the environment's ``info`` dictionaries."""

@@ -1,5 +1,28 @@
-"""Test setup: headless rendering (MuJoCo reads MUJOCO_GL when it is first imported)."""
+"""Test setup: headless rendering (MuJoCo reads MUJOCO_GL when it is first imported), shared facts."""
 
 import os
 
+import pytest
+
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+@pytest.fixture
+def run_json_keys() -> set[str]:
+    """The keys ``microg run --json`` must print (issue: the run metrics)."""
+    return {
+        "descent_accel_m_s2",
+        "ideal_descent_accel_m_s2",
+        "compensation_error_pct",
+        "residual_gravity_g",
+        "flexible_unit_excursion_free_fall_m",
+        "flexible_unit_excursion_collision_m",
+        "support_force_variation_n",
+        "max_deformation_m",
+        "collision_accel_m_s2",
+        "contact_time_s",
+        "restitution",
+        "rebound_height_m",
+        "reference_max_deformation_m",
+        "reference_rms_height_error_m",
+    }

@@ -100,26 +100,10 @@ def test_export_mjcf_writes_a_model_that_compiles(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == [out]  # no temporary file left behind
 
 
-def test_run_json_keys_and_signs(capsys):
+def test_run_json_keys_and_signs(capsys, run_json_keys):
     assert main(["run", "--condition", "2", "--duration", "6", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
-    for key in (
-        "descent_accel_m_s2",
-        "ideal_descent_accel_m_s2",
-        "compensation_error_pct",
-        "residual_gravity_g",
-        "flexible_unit_excursion_free_fall_m",
-        "flexible_unit_excursion_collision_m",
-        "support_force_variation_n",
-        "max_deformation_m",
-        "collision_accel_m_s2",
-        "contact_time_s",
-        "restitution",
-        "rebound_height_m",
-        "reference_max_deformation_m",
-        "reference_rms_height_error_m",
-    ):
-        assert key in result
+    assert run_json_keys <= set(result)
     assert result["ideal_descent_accel_m_s2"] == [pytest.approx(-1.0 * 9.8009 / 621.0)]
     assert result["descent_accel_m_s2"][0] < 0  # down is negative
     assert result["collision_accel_m_s2"] > 0  # the pad pushes up
