@@ -67,7 +67,7 @@ class Summary:
 
 
 def summarise(runs: Iterable[RunMetrics], quantity: Callable[[RunMetrics], float], worst: Callable = max) -> Summary:
-    """Summary of ``quantity(run)`` over ``runs``; failed runs (NaN) count as worst."""
+    """Summary of ``quantity(run)`` over ``runs``, leaving out runs that never reached it (NaN)."""
     values = np.array([quantity(run) for run in runs], dtype=float)
     finite = values[np.isfinite(values)]
     if finite.size == 0:
