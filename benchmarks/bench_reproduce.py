@@ -16,11 +16,11 @@ from pathlib import Path
 
 from timing import median_seconds
 
-from microg_env.calibration import calibrated_pad
+from microg_env.analysis.evaluate import run_episode
 from microg_env.cli import main as microg
 from microg_env.controllers import make_controller
-from microg_env.env import MicroGravityLandingEnv
-from microg_env.evaluate import run_episode
+from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.paper.calibration import calibrated_pad
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -20,9 +20,9 @@ import sys
 import mujoco
 from timing import median_seconds
 
+from microg_env.analysis.evaluate import run_episode, run_with_metrics
 from microg_env.controllers import make_controller
-from microg_env.env import MicroGravityLandingEnv
-from microg_env.evaluate import run_episode, run_with_metrics
+from microg_env.envs.landing import MicroGravityLandingEnv
 
 
 def main(argv: list[str] | None = None) -> int:

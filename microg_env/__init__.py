@@ -5,13 +5,13 @@ Importing the package registers the Gymnasium environment ``MicroGravityLanding-
 
 from gymnasium.envs.registration import register, registry
 
-from microg_env.contact import SpringDamperContact
-from microg_env.drop import drop_test, static_sink
-from microg_env.env import MicroGravityLandingEnv
+from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization, Imperfections
-from microg_env.model import PadTest, Rig, build_pad_test, build_rig
 from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
+from microg_env.sim.contact import SpringDamperContact
+from microg_env.sim.drop import drop_test, static_sink
+from microg_env.sim.model import PadTest, Rig, build_pad_test, build_rig
 
 __version__ = "0.1.0"
 
@@ -21,7 +21,7 @@ MAX_EPISODE_STEPS = 30_000
 if "MicroGravityLanding-v0" not in registry:
     register(
         id="MicroGravityLanding-v0",
-        entry_point="microg_env.env:MicroGravityLandingEnv",
+        entry_point="microg_env.envs.landing:MicroGravityLandingEnv",
         max_episode_steps=MAX_EPISODE_STEPS,
     )
 

@@ -14,13 +14,13 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from microg_env.calibration import pad_values
+from microg_env.analysis.metrics import RunMetrics
 from microg_env.controllers import CONTROLLER_NAMES
-from microg_env.drop import DropReport, drop_test
 from microg_env.imperfections import Imperfections
-from microg_env.metrics import RunMetrics
+from microg_env.paper.calibration import pad_values
 from microg_env.params import RigParams
 from microg_env.scenarios import LoadStep, Scenario, condition
+from microg_env.sim.drop import DropReport, drop_test
 
 
 class UsageError(Exception):
@@ -95,7 +95,7 @@ def write_atomically(path: Path, text: str) -> None:
 
 
 def _cmd_export_mjcf(args: argparse.Namespace) -> int:
-    from microg_env.model import build_spec
+    from microg_env.sim.model import build_spec
 
     stiffness, damping = pad_values(args.pad)
     params = RigParams()
@@ -173,9 +173,9 @@ def _print_run(scenario: Scenario, args: argparse.Namespace, m: RunMetrics) -> N
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from microg_env.analysis.evaluate import run_with_metrics
     from microg_env.controllers import make_controller
-    from microg_env.env import MicroGravityLandingEnv
-    from microg_env.evaluate import run_with_metrics
+    from microg_env.envs.landing import MicroGravityLandingEnv
 
     if args.plot is not None:
         _check_writable(Path(args.plot))
@@ -190,7 +190,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     else:
         _print_run(scenario, args, metrics)
     if args.plot is not None:
-        from microg_env.plots import plot_run
+        from microg_env.analysis.plots import plot_run
 
         plot_run(trajectory, reference, f"{scenario.name}, {args.controller}, seed {args.seed}", Path(args.plot))
         if not args.json:
@@ -214,9 +214,9 @@ def _add_pad_option(parser: argparse.ArgumentParser) -> None:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from microg_env.calibration import calibrate
-    from microg_env.paper import CONDITIONS as PAPER
-    from microg_env.report import paper_residuals
+    from microg_env.paper.calibration import calibrate
+    from microg_env.paper.report import paper_residuals
+    from microg_env.paper.tables import CONDITIONS as PAPER
 
     result = calibrate()
     if args.json:
@@ -245,7 +245,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    from microg_env import report
+    from microg_env.paper import report
 
     if args.duration is not None and not 0 < args.duration <= 600:
         raise ValueError(f"duration must be in (0, 600] s, got {args.duration!r}")

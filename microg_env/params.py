@@ -3,7 +3,7 @@
 Every value cites the paper (Jia et al., Actuators 2024, 13(9), 361: a table, an equation or a
 section) or is marked ``assumption`` with its reason. The MJCF template in ``mjcf/`` carries the
 same geometry and masses (a test checks they agree); every force law is built from here by
-:func:`microg_env.model.build_rig`. Change a value with :func:`dataclasses.replace`.
+:func:`microg_env.sim.model.build_rig`. Change a value with :func:`dataclasses.replace`.
 """
 
 from __future__ import annotations

@@ -5,12 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from microg_env.calibration import LandingModel, calibrate, impact_speed_m_s, paper_targets, with_pad
+from microg_env.analysis.metrics import compute_metrics
 from microg_env.cli import main
-from microg_env.metrics import compute_metrics
-from microg_env.paper import WORST_COLLISION_ERROR_PCT, WORST_DEFORMATION_ERROR_PCT
-from microg_env.reference import simulate_reference
+from microg_env.paper.calibration import LandingModel, calibrate, impact_speed_m_s, paper_targets, with_pad
+from microg_env.paper.tables import WORST_COLLISION_ERROR_PCT, WORST_DEFORMATION_ERROR_PCT
 from microg_env.scenarios import CONDITIONS
+from microg_env.sim.reference import simulate_reference
 
 
 @pytest.fixture(scope="module")

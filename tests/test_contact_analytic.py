@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from microg_env.contact import SpringDamperContact
 from microg_env.params import flat_punch_radius_m
+from microg_env.sim.contact import SpringDamperContact
 
 PAPER = SpringDamperContact(620.0, 4666.0, 200.0)
 SPEED = 0.0373

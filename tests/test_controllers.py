@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
+from microg_env.analysis.evaluate import run_with_metrics
 from microg_env.controllers import PID, PIDGains, PolicyController, load_gains, make_controller
-from microg_env.env import OBSERVATION_INDEX, OBSERVATION_SCALES, MicroGravityLandingEnv
-from microg_env.evaluate import run_with_metrics
+from microg_env.envs.landing import OBSERVATION_INDEX, OBSERVATION_SCALES, MicroGravityLandingEnv
 
 GAINS = PIDGains(kp_per_s=100.0, ki_per_s2=5000.0, kd=2.0, derivative_filter_s=0.0, integral_limit_m_s=0.5)
 PERIOD = 1e-3
@@ -118,7 +118,7 @@ def test_pid_dom_meets_the_same_targets():
 def test_evaluation_harness_over_seeds():
     from dataclasses import replace
 
-    from microg_env.evaluate import evaluate, summarise
+    from microg_env.analysis.evaluate import evaluate, summarise
     from microg_env.scenarios import CONDITIONS
 
     scenario = replace(CONDITIONS[2], duration_s=2.0)  # the free fall only

@@ -9,9 +9,9 @@ from gymnasium.utils.env_checker import check_env
 
 import microg_env
 from microg_env import Imperfections, LoadStep, Scenario
+from microg_env.analysis.evaluate import run_episode
 from microg_env.controllers import make_controller
-from microg_env.env import OBSERVATION_SCALES, MicroGravityLandingEnv
-from microg_env.evaluate import run_episode
+from microg_env.envs.landing import OBSERVATION_SCALES, MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
 
 ENV_ID = "microg_env:MicroGravityLanding-v0"

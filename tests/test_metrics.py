@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from microg_env.contact import SpringDamperContact
-from microg_env.metrics import compute_metrics, contacts, descent_acceleration, landing, stage_windows
-from microg_env.reference import simulate_reference
+from microg_env.analysis.metrics import compute_metrics, contacts, descent_acceleration, landing, stage_windows
+from microg_env.analysis.trajectory import Trajectory
 from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
-from microg_env.trajectory import Trajectory
+from microg_env.sim.contact import SpringDamperContact
+from microg_env.sim.reference import simulate_reference
 
 DT = 1e-3
 SCENARIO = Scenario("synthetic", (LoadStep(0.49),), descent_height_m=0.09)

@@ -5,9 +5,9 @@ from dataclasses import replace
 import mujoco
 import pytest
 
-from microg_env.drop import drop_test, static_sink
-from microg_env.model import build_pad_test
 from microg_env.params import PadParams, RigParams
+from microg_env.sim.drop import drop_test, static_sink
+from microg_env.sim.model import build_pad_test
 
 # (M, K, D): the paper's lander and pad, a lighter stiffer set, and a light soft one.
 PADS = [(620.0, 4666.0, 200.0), (300.0, 10000.0, 500.0), (100.0, 2000.0, 50.0)]

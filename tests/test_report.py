@@ -5,12 +5,12 @@ from dataclasses import replace
 
 import pytest
 
-from microg_env import report
+from microg_env.analysis.evaluate import run_with_metrics
 from microg_env.cli import main
 from microg_env.controllers import make_controller
-from microg_env.env import MicroGravityLandingEnv
-from microg_env.evaluate import run_with_metrics
-from microg_env.paper import CONDITIONS as PAPER
+from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.paper import report
+from microg_env.paper.tables import CONDITIONS as PAPER
 from microg_env.scenarios import CONDITIONS
 
 DURATION = 12.0  # long enough for every condition's first contact

@@ -7,9 +7,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from microg_env.ideal import IdealFollower
-from microg_env.model import TEMPLATE_LOADS, build_rig, flexible_unit, mjcf_dir
 from microg_env.params import GRAVITY_M_S2, LanderParams, PadParams, QZSParams, RigParams, ServoParams
+from microg_env.sim.ideal import IdealFollower
+from microg_env.sim.model import TEMPLATE_LOADS, build_rig, flexible_unit, mjcf_dir
 
 MJCF_FILES = sorted(Path(mjcf_dir()).glob("*.xml"))
 

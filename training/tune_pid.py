@@ -29,9 +29,9 @@ from dataclasses import replace
 
 import numpy as np
 
+from microg_env.analysis.evaluate import run_with_metrics
 from microg_env.controllers import PID, PIDGains
-from microg_env.env import MicroGravityLandingEnv
-from microg_env.evaluate import run_with_metrics
+from microg_env.envs.landing import MicroGravityLandingEnv
 
 KI_GRID = (5_000.0, 10_000.0, 20_000.0, 30_000.0)
 ZETA_GRID = (0.7, 1.0, 1.4)

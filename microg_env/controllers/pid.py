@@ -1,6 +1,6 @@
-"""Controllers behind one interface: ``reset()``, then ``controller(observation, info) -> action``.
+"""The PID baseline of Section 3.1.
 
-The PID baseline of Section 3.1 closes a position loop on the grating ruler's x and commands the
+It closes a position loop on the grating ruler's x and commands the
 stroke amplifier's speed: v = Kp x + Ki integral(x) + D, clipped to the drive's +-1250 mm/s with
 conditional-integration anti-windup. Two derivative terms are offered:
 
@@ -10,9 +10,6 @@ conditional-integration anti-windup. Two derivative terms are offered:
   The setpoint of the support position is the lander's position (the "given value") and the
   controlled variable is the support's own position, so D = -Kd dz_support/dt (servo encoder):
   the jump of the lander's velocity at impact no longer kicks the command.
-
-Controllers read only the observation (what the rig's sensors give), never the simulator's truth,
-so a learned policy (:class:`PolicyController`) is compared with them on equal terms.
 """
 
 from __future__ import annotations
@@ -21,11 +18,11 @@ import math
 import sys
 from dataclasses import dataclass, fields
 from importlib import resources
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
-from microg_env.env import OBSERVATION_INDEX, OBSERVATION_SCALES
+from microg_env.envs.landing import OBSERVATION_INDEX, OBSERVATION_SCALES
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -34,16 +31,6 @@ else:  # pragma: no cover - Python 3.10
 
 #: Drive speed that the action +-1 stands for, m/s (Section 4.1).
 MAX_SPEED_M_S = 1.25
-
-
-class Controller(Protocol):
-    """What the environment, the CLI and the evaluation harness drive."""
-
-    def reset(self) -> None:
-        """Forget the previous episode."""
-
-    def __call__(self, observation: np.ndarray, info: dict[str, Any]) -> np.ndarray:
-        """The action for this observation, shape (1,), in [-1, 1]."""
 
 
 @dataclass(frozen=True)
@@ -103,21 +90,6 @@ class PID:
             self._integral = integral
         command = min(max(command, -MAX_SPEED_M_S), MAX_SPEED_M_S)
         return np.array([command / MAX_SPEED_M_S], dtype=np.float32)
-
-
-class PolicyController:
-    """A learned policy (anything with ``predict(obs, deterministic=True)``, e.g. stable-baselines3)."""
-
-    def __init__(self, policy: Any, deterministic: bool = True) -> None:
-        self.policy = policy
-        self.deterministic = deterministic
-
-    def reset(self) -> None:
-        """Policies here are feed-forward; nothing to forget."""
-
-    def __call__(self, observation: np.ndarray, info: dict[str, Any]) -> np.ndarray:
-        action, _ = self.policy.predict(observation, deterministic=self.deterministic)
-        return np.asarray(action, dtype=np.float32).reshape(1)
 
 
 #: Controllers selectable by name in the CLI and the evaluation harness.

@@ -28,11 +28,11 @@ _PROBE_DEPTHS_M = (1e-3, 2e-2)
 
 def mjcf_dir() -> Path:
     """Folder holding scene.xml: inside the installed package, or the repository's ``mjcf/``."""
-    here = Path(__file__).resolve().parent
-    for candidate in (here / "mjcf", here.parent / "mjcf"):
+    package = Path(__file__).resolve().parents[1]
+    for candidate in (package / "mjcf", package.parent / "mjcf"):
         if (candidate / "scene.xml").is_file():
             return candidate
-    raise FileNotFoundError(f"scene.xml not found next to {here}; the package is incomplete")
+    raise FileNotFoundError(f"scene.xml not found next to {package}; the package is incomplete")
 
 
 def pad_contact_solref(

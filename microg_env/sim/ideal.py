@@ -13,7 +13,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from microg_env.model import Rig
+from microg_env.sim.model import Rig
 
 
 class IdealFollower:

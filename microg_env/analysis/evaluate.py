@@ -8,11 +8,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from microg_env.analysis.metrics import RunMetrics, compute_metrics
+from microg_env.analysis.trajectory import Trajectory, TrajectoryRecorder
 from microg_env.controllers import Controller
-from microg_env.env import MicroGravityLandingEnv
-from microg_env.metrics import RunMetrics, compute_metrics
-from microg_env.reference import simulate_reference
-from microg_env.trajectory import Trajectory, TrajectoryRecorder
+from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.sim.reference import simulate_reference
 
 
 def run_episode(

@@ -13,9 +13,9 @@ from gymnasium import spaces, utils
 
 from microg_env import scenarios
 from microg_env.imperfections import DomainRandomization, Imperfections, apply_imperfections
-from microg_env.model import Rig, build_rig, flexible_unit
 from microg_env.params import RigParams
 from microg_env.scenarios import Scenario
+from microg_env.sim.model import Rig, build_rig, flexible_unit
 
 #: Observation entries and the scale each is divided by (SI units / scale = order one).
 OBSERVATION_SCALES: dict[str, float] = {

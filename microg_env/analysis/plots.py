@@ -6,7 +6,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from microg_env.trajectory import Trajectory
+from microg_env.analysis.trajectory import Trajectory
 
 
 def figure_class():

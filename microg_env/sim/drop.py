@@ -3,7 +3,7 @@
 The lander (rig removed, no field: the free collision of Eq. 1) reaches the pad at speed V0. From
 the simulated trace we measure contact time, restitution and peak deformation, and fit K and D by
 least squares to the force-deformation trace (F = K d + D d'), and compare each with
-:class:`~microg_env.contact.SpringDamperContact`. :func:`static_sink` checks the other half of the
+:class:`~microg_env.sim.contact.SpringDamperContact`. :func:`static_sink` checks the other half of the
 contact law: the settled deformation under a constant load F must be F/K.
 """
 
@@ -15,9 +15,9 @@ from dataclasses import dataclass, replace
 import mujoco
 import numpy as np
 
-from microg_env.contact import SpringDamperContact
-from microg_env.model import PadTest, build_pad_test
 from microg_env.params import LOAD_CAPACITY_KG, RigParams
+from microg_env.sim.contact import SpringDamperContact
+from microg_env.sim.model import PadTest, build_pad_test
 
 #: Height above the pad at which the drop starts, m (reached at constant speed in zero field).
 _START_HEIGHT_M = 1.0e-3

@@ -3,7 +3,7 @@
 The six experimental values of Tables 5 and 6 (peak pad deformation and collision acceleration of
 conditions 1-3) are fitted by least squares on this model: each residual is the model's value
 minus the experiment's, in % of the experiment. The model's value is the first contact of the
-ideal-microgravity landing (:mod:`microg_env.reference`), simulated in MuJoCo from the touchdown at
+ideal-microgravity landing (:mod:`microg_env.sim.reference`), simulated in MuJoCo from the touchdown at
 the speed of the ideal free fall; the rig under the PID lands like it to 0.03 % in deformation and
 0.3 % in acceleration (README), and ``microg reproduce`` checks the fit on the full rig.
 
@@ -21,12 +21,12 @@ from dataclasses import dataclass, replace
 import mujoco
 import numpy as np
 
-from microg_env.contact import damping_ratio
-from microg_env.model import build_pad_test, pad_contact_solref
-from microg_env.paper import CONDITIONS as PAPER
-from microg_env.paper import experiment_relative_error_pct
+from microg_env.paper.tables import CONDITIONS as PAPER
+from microg_env.paper.tables import experiment_relative_error_pct
 from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS, Scenario
+from microg_env.sim.contact import damping_ratio
+from microg_env.sim.model import build_pad_test, pad_contact_solref
 
 #: Damping ratio the search may not cross (Section 2 needs an under-damped pad).
 _MAX_DAMPING_RATIO = 0.95

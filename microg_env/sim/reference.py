@@ -3,7 +3,7 @@
 The same lander and pad, no rig: the lander with the weights placed so far (mass M + m) falls in
 a uniform field m g / (M + m) from the scenario's descent height, the field and the mass changing
 when the scenario places a weight, exactly as on an ideal rig. Sampled at the control period, it
-is the yardstick of :func:`microg_env.metrics.compute_metrics`.
+is the yardstick of :func:`microg_env.analysis.metrics.compute_metrics`.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import math
 import mujoco
 import numpy as np
 
-from microg_env.model import build_pad_test, pad_contact_solref
+from microg_env.analysis.trajectory import Trajectory
 from microg_env.params import RigParams
 from microg_env.scenarios import Scenario
-from microg_env.trajectory import Trajectory
+from microg_env.sim.model import build_pad_test, pad_contact_solref
 
 
 def simulate_reference(

@@ -1,0 +1,1 @@
+"""Recorded runs, their metrics, the evaluation harness and figures."""

@@ -1,0 +1,1 @@
+"""The paper: its transcribed numbers, the pad calibration and the reproduction report."""
