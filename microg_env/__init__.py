@@ -13,7 +13,7 @@ from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.drop import drop_test, static_sink
 from microg_env.sim.model import PadTest, Rig, build_pad_test, build_rig
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 #: 30 s (Section 3.2) at the default 1 kHz control rate.
 MAX_EPISODE_STEPS = 30_000

@@ -1,26 +1,31 @@
 """The ``microg`` command.
 
-Every user error (a bad option or value) prints one line to stderr and exits with code 2.
+Every user error (a bad option or value, an unwritable output) prints one line to stderr naming
+the option and exits with code 2, before any work is done; output piped into a closed reader
+(``| head``) ends quietly.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
-import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from microg_env.analysis.metrics import RunMetrics
-from microg_env.controllers import CONTROLLER_NAMES
-from microg_env.imperfections import Imperfections
-from microg_env.paper.calibration import pad_values
-from microg_env.params import RigParams
-from microg_env.scenarios import LoadStep, Scenario, condition
-from microg_env.sim.drop import DropReport, drop_test
+from microg_env.controllers.pid import CONTROLLER_NAMES
+from microg_env.params import CONTROL_PERIOD_RANGE_S, LOAD_CAPACITY_KG, PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S
+from microg_env.scenarios import MAX_DURATION_S, MIN_DURATION_S, MIN_HEIGHT_M, MIN_LOAD_KG, LoadStep
+
+#: Seeds accepted on the command line (NumPy's and Gymnasium's seeds are non-negative).
+MAX_SEED = 2**32 - 1
+#: Figure formats ``--plot`` writes.
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+#: Where ``microg reproduce`` writes by default; its missing parents are created.
+DEFAULT_REPORT_DIR = "results/reproduction"
 
 
 class UsageError(Exception):
@@ -32,14 +37,43 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(f"{self.prog}: error: {message}")
 
 
-def _float(text: str) -> float:
+def _number(low: float, high: float, unit: str, low_open: bool = True) -> Callable[[str], float]:
+    """An argparse type: a finite number in (low, high] (or [low, high]) in ``unit``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        below = value <= low if low_open else value < low
+        if not math.isfinite(value) or below or value > high:
+            bracket = "(" if low_open else "["
+            raise argparse.ArgumentTypeError(f"must be in {bracket}{low:g}, {high:g}] {unit}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _seed(text: str) -> int:
     try:
-        return float(text)
+        value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be an integer in [0, {MAX_SEED}], got {text!r}")
+    return value
 
 
-def _print_drop(report: DropReport) -> None:
+def _load_step(text: str) -> LoadStep:
+    """KG[@HEIGHT_MM]: a weight placed at t = 0, or when the foot is HEIGHT_MM above the pad."""
+    mass, _, height = text.partition("@")
+    try:
+        return LoadStep(float(mass), float(height) * 1e-3 if height else None)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"bad load {text!r}: {error}") from None
+
+
+def _print_drop(report) -> None:
     c = report.contact
     print(
         f"Pad drop test: M = {report.mass_kg:g} kg, K = {report.stiffness_n_per_m:g} N/m, "
@@ -64,11 +98,23 @@ def _print_drop(report: DropReport) -> None:
     )
 
 
+def _pad(args: argparse.Namespace):
+    """The pad of ``--pad``, with ``--stiffness`` and ``--damping`` replacing its K and D."""
+    from microg_env.paper.calibration import pad_params
+
+    pad = pad_params(args.pad)
+    if args.stiffness is not None:
+        pad = replace(pad, stiffness_n_per_m=args.stiffness)
+    if args.damping is not None:
+        pad = replace(pad, damping_n_s_per_m=args.damping)
+    return pad
+
+
 def _cmd_drop(args: argparse.Namespace) -> int:
-    stiffness, damping = pad_values(args.pad)
-    stiffness = stiffness if args.stiffness is None else args.stiffness
-    damping = damping if args.damping is None else args.damping
-    report = drop_test(args.mass, stiffness, damping, args.velocity)
+    from microg_env.sim.drop import drop_test
+
+    pad = _pad(args)
+    report = drop_test(args.mass, pad.stiffness_n_per_m, pad.damping_n_s_per_m, args.velocity)
     if args.json:
         print(json.dumps(report.as_dict(), indent=2))
     else:
@@ -76,49 +122,24 @@ def _cmd_drop(args: argparse.Namespace) -> int:
     return 0
 
 
-def write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: never a half-written file."""
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.is_dir():
-        raise UsageError(f"microg: error: cannot write {path}: folder {directory} does not exist")
-    try:
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=directory)
-    except OSError as error:
-        raise UsageError(f"microg: error: cannot write {path}: {error.strerror}") from None
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as stream:
-            stream.write(text)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-
-
 def _cmd_export_mjcf(args: argparse.Namespace) -> int:
+    from microg_env.files import check_output_file, write_text
+    from microg_env.params import RigParams
     from microg_env.sim.model import build_spec
 
-    stiffness, damping = pad_values(args.pad)
-    params = RigParams()
-    params = replace(params, pad=replace(params.pad, stiffness_n_per_m=stiffness, damping_n_s_per_m=damping))
-    spec, _ = build_spec(params, tuple(args.load))
+    output = check_output_file(args.output, "FILE", (".xml",))
+    params = replace(RigParams(), pad=_pad(args))
+    spec, _ = build_spec(params, tuple(args.load), physics_step_s=args.physics_step * 1e-6)
     spec.compile()
-    write_atomically(Path(args.output), spec.to_xml())
-    print(f"wrote {args.output}")
+    write_text(output, spec.to_xml())
+    print(f"wrote {output}")
     return 0
 
 
-def _load_step(text: str) -> LoadStep:
-    """KG[@HEIGHT_MM]: a weight placed at t = 0, or when the foot is HEIGHT_MM above the pad."""
-    mass, _, height = text.partition("@")
-    try:
-        return LoadStep(float(mass), float(height) * 1e-3 if height else None)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(f"bad load {text!r}: {error}") from None
+def _scenario(args: argparse.Namespace):
+    from microg_env.scenarios import condition
 
-
-def _scenario(args: argparse.Namespace) -> Scenario:
-    stiffness, damping = pad_values(args.pad)
-    scenario = replace(condition(args.condition), pad_stiffness_n_per_m=stiffness, pad_damping_n_s_per_m=damping)
+    scenario = condition(args.condition)
     if args.load:
         scenario = replace(scenario, name="custom", loads=tuple(args.load))
     if args.height is not None:
@@ -133,17 +154,18 @@ def _format_row(label: str, values: list[float], scale: float, spec: str) -> str
     return f"  {label:<36}{cells}"
 
 
-def _print_run(scenario: Scenario, args: argparse.Namespace, m: RunMetrics) -> None:
+def _print_run(env, args: argparse.Namespace, m) -> None:
+    scenario, pad = env.active_scenario, env.params.pad
     loads = ", ".join(
         f"{load.mass_kg:g} kg" + ("" if load.height_m is None else f" at {load.height_m * 1e3:g} mm")
         for load in scenario.loads
     )
     print(
         f"{scenario.name}: loads {loads}; descent from {scenario.descent_height_m * 1e3:g} mm; "
-        f"{args.pad} pad (K = {scenario.pad_stiffness_n_per_m:.1f} N/m, "
-        f"D = {scenario.pad_damping_n_s_per_m:.1f} N s/m); "
+        f"{args.pad} pad (K = {pad.stiffness_n_per_m:.1f} N/m, D = {pad.damping_n_s_per_m:.1f} N s/m); "
         f"controller {args.controller}; seed {args.seed}; {scenario.duration_s:g} s at "
-        f"{args.control_period:g} us; imperfections {'off' if args.ideal else 'on'}"
+        f"{args.control_period:g} us (physics step {args.physics_step:g} us); "
+        f"imperfections {'off' if args.ideal else 'on'}"
     )
     if m.termination_reason:
         print(f"  episode ended early: {m.termination_reason}")
@@ -155,10 +177,11 @@ def _print_run(scenario: Scenario, args: argparse.Namespace, m: RunMetrics) -> N
     print(_format_row("compensation error [%]", m.compensation_error_pct, 1.0, "+.3f"))
     print(_format_row("residual gravity error [g]", m.residual_gravity_g, 1.0, "+.2e"))
     print(_format_row("microgravity level [g]", m.microgravity_level_g, 1.0, ".2e"))
-    print("flexible unit")
+    print("flexible unit and drive")
     print(_format_row("max |x| in free fall [um]", [m.flexible_unit_excursion_free_fall_m], 1e6, ".3f"))
     print(_format_row("max |x| during the collision [um]", [m.flexible_unit_excursion_collision_m], 1e6, ".3f"))
     print(_format_row("support force variation [N]", [m.support_force_variation_n], 1.0, ".4f"))
+    print(_format_row("servo RMS torque [N m] (rated 48)", [m.servo_rms_torque_n_m], 1.0, ".3f"))
     print(f"{'first landing':<38}{'rig':>12}{'ideal':>12}")
     print(_format_row("peak pad deformation [mm]", [m.max_deformation_m, m.reference_max_deformation_m], 1e3, ".3f"))
     print(
@@ -169,48 +192,45 @@ def _print_run(scenario: Scenario, args: argparse.Namespace, m: RunMetrics) -> N
     print(_format_row("contact time [s]", [m.contact_time_s, m.reference_contact_time_s], 1.0, ".4f"))
     print(_format_row("restitution [-]", [m.restitution, m.reference_restitution], 1.0, ".4f"))
     print(_format_row("rebound height [mm]", [m.rebound_height_m], 1e3, ".2f"))
-    print(_format_row("RMS height error to rebound end [mm]", [m.reference_rms_height_error_m], 1e3, ".4f"))
+    print(_format_row("RMS height error to rebound apex [mm]", [m.reference_rms_height_error_m], 1e3, ".4f"))
+    for name, reason in m.unavailable.items():
+        print(f"  not available: {name}: {reason}")
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from microg_env.analysis.evaluate import run_with_metrics
-    from microg_env.controllers import make_controller
+    from microg_env.controllers.pid import make_controller
     from microg_env.envs.landing import MicroGravityLandingEnv
+    from microg_env.files import check_output_file
+    from microg_env.imperfections import Imperfections
+    from microg_env.params import RigParams
 
-    if args.plot is not None:
-        _check_writable(Path(args.plot))
-    scenario = _scenario(args)
-    period = args.control_period * 1e-6
-    imperfections = Imperfections.none() if args.ideal else Imperfections()
-    env = MicroGravityLandingEnv(scenario=scenario, control_period_s=period, imperfections=imperfections)
+    plot = None if args.plot is None else check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
+    if plot is not None:
+        from microg_env.analysis.plots import figure_class
+
+        figure_class()  # fail now, not after the run, if matplotlib is missing
+    period, step = args.control_period * 1e-6, args.physics_step * 1e-6
+    env = MicroGravityLandingEnv(
+        scenario=_scenario(args),
+        control_period_s=period,
+        physics_step_s=step,
+        imperfections=Imperfections.none() if args.ideal else Imperfections(),
+        params=replace(RigParams(), pad=_pad(args)),
+    )
     controller = make_controller(args.controller, period)
     trajectory, reference, metrics = run_with_metrics(env, controller, seed=args.seed)
     if args.json:
         print(json.dumps(metrics.as_dict(), indent=2))
     else:
-        _print_run(scenario, args, metrics)
-    if args.plot is not None:
+        _print_run(env, args, metrics)
+    if plot is not None:
         from microg_env.analysis.plots import plot_run
 
-        plot_run(trajectory, reference, f"{scenario.name}, {args.controller}, seed {args.seed}", Path(args.plot))
+        plot_run(trajectory, reference, f"{env.scenario.name}, {args.controller}, seed {args.seed}", plot)
         if not args.json:
-            print(f"wrote {args.plot}")
+            print(f"wrote {plot}")
     return 0
-
-
-def _check_writable(path: Path) -> None:
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.is_dir() or not os.access(directory, os.W_OK):
-        raise UsageError(f"microg: error: cannot write {path}: folder {directory} is missing or not writable")
-
-
-def _add_pad_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--pad",
-        choices=("paper", "calibrated"),
-        default="paper",
-        help="the pad: Table 1's K and D (paper) or K and D fitted to the experiments (calibrated)",
-    )
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -218,57 +238,94 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from microg_env.paper.report import paper_residuals
     from microg_env.paper.tables import CONDITIONS as PAPER
 
-    result = calibrate()
+    result = calibrate(source=args.source)
     if args.json:
         print(json.dumps(result.as_dict(), indent=2))
         return 0
+    what = "experiments (Tables 5-6, actual)" if args.source == "experiment" else "simulation (Tables 5-6, theoretical)"
     print(
-        f"Pad calibrated to the paper's experiments (Tables 5-6, actual) by least squares: "
+        f"Pad fitted to the paper's {what} by least squares: "
         f"K = {result.stiffness_n_per_m:.1f} N/m, D = {result.damping_n_s_per_m:.1f} N s/m "
         f"({result.iterations} iterations; Table 1: 4666 N/m, 200 N s/m)"
     )
     paper_deformation, paper_acceleration = paper_residuals()
-    print(f"{'residual, model - experiment, % of experiment':<48}{'cond. 1':>10}{'cond. 2':>10}{'cond. 3':>10}")
-    rows = (
-        ("peak deformation, calibrated", result.max_deformation_pct),
-        ("peak deformation, the paper's simulation", paper_deformation),
-        ("collision acceleration, calibrated", result.collision_accel_pct),
-        ("collision acceleration, the paper's simulation", paper_acceleration),
-    )
+    print(f"{'residual, model - target, % of target':<48}{'cond. 1':>10}{'cond. 2':>10}{'cond. 3':>10}")
+    rows = [("peak deformation, fitted", result.max_deformation_pct)]
+    rows += [("collision acceleration, fitted", result.collision_accel_pct)]
+    if args.source == "experiment":
+        rows.insert(1, ("peak deformation, the paper's simulation", paper_deformation))
+        rows.append(("collision acceleration, the paper's simulation", paper_acceleration))
+        measured = ", ".join(
+            f"{c.measured_max_deformation_mm:g} mm / {c.measured_collision_accel_mm_s2:g} mm/s^2"
+            for c in PAPER.values()
+        )
+        print(f"experiments (deformation / acceleration): {measured}")
     for label, values in rows:
         print(f"  {label:<46}" + "".join(f"{v:>+10.2f}" for v in values))
-    measured = ", ".join(
-        f"{c.measured_max_deformation_mm:g} mm / {c.measured_collision_accel_mm_s2:g} mm/s^2" for c in PAPER.values()
-    )
-    print(f"experiments (deformation / acceleration): {measured}; RMS residual {result.rms_residual_pct:.2f} %")
+    print(f"RMS residual {result.rms_residual_pct:.2f} %")
     return 0
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    from microg_env.paper import report
+    from microg_env.analysis.plots import figure_class
+    from microg_env.paper import report, reproduction
 
-    if args.duration is not None and not 0 < args.duration <= 600:
-        raise ValueError(f"duration must be in (0, 600] s, got {args.duration!r}")
     out = Path(args.out)
+    if args.out == DEFAULT_REPORT_DIR:
+        out.parent.mkdir(parents=True, exist_ok=True)
     report.check_output(out)
-    duration = 30.0 if args.duration is None else args.duration
     try:
         from tqdm import tqdm
     except ImportError:
         raise ValueError("microg reproduce needs the report extra: pip install 'microg-env[report]'") from None
-    report.figure_class()  # fail now, not after the runs, if matplotlib is missing
+    figure_class()  # fail now, not after the runs, if matplotlib is missing
+    duration = 30.0 if args.duration is None else args.duration
     with tqdm(
-        total=report.total_steps(duration),
+        total=reproduction.total_steps(duration),
         unit="step",
         unit_scale=True,
         desc="reproduce",
         file=sys.stderr,
         disable=args.quiet,
     ) as bar:
-        reproduction = report.compute(duration_s=duration, seed=args.seed, progress=bar.update)
-    report.write(reproduction, out)
+        runs = reproduction.compute(duration_s=duration, seed=args.seed, progress=bar.update)
+    report.write(runs, out)
     print(f"wrote {out / 'report.md'}")
     return 0
+
+
+def _add_pad_options(parser: argparse.ArgumentParser) -> None:
+    from microg_env.paper.calibration import PAD_NAMES
+
+    parser.add_argument(
+        "--pad",
+        choices=PAD_NAMES,
+        default="paper",
+        help="the pad: Table 1's K and D (paper), fitted to the experiments (calibrated) or to the paper's "
+        "simulation (paper-simulation)",
+    )
+    parser.add_argument(
+        "--stiffness", type=_number(0.0, 1e12, "N/m"), metavar="N_PER_M", help="pad stiffness K (default: --pad's)"
+    )
+    parser.add_argument(
+        "--damping", type=_number(0.0, 1e12, "N s/m"), metavar="N_S_PER_M", help="pad damping D (default: --pad's)"
+    )
+
+
+def _add_duration_option(parser: argparse.ArgumentParser, help_text: str) -> None:
+    duration = _number(MIN_DURATION_S, MAX_DURATION_S, "s", low_open=False)
+    parser.add_argument("--duration", type=duration, metavar="S", help=help_text)
+
+
+def _add_physics_step_option(parser: argparse.ArgumentParser) -> None:
+    low, high = (1e6 * v for v in PHYSICS_STEP_RANGE_S)
+    parser.add_argument(
+        "--physics-step",
+        type=_number(low, high, "us", low_open=False),
+        default=PHYSICS_STEP_S * 1e6,
+        metavar="US",
+        help=f"physics step (default {PHYSICS_STEP_S * 1e6:g}, chosen by a convergence study)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -281,12 +338,13 @@ def build_parser() -> argparse.ArgumentParser:
         description="Drop a lander on the rubber pad in MuJoCo (no field, rig removed) and compare contact time, "
         "restitution, peak deformation and the fitted K, D with the Section 2 spring-damper.",
     )
-    defaults = RigParams()
-    drop.add_argument("--mass", type=_float, default=defaults.lander.mass_kg, metavar="KG", help="lander mass")
-    drop.add_argument("--stiffness", type=_float, metavar="N_PER_M", help="pad stiffness K (default: --pad's)")
-    drop.add_argument("--damping", type=_float, metavar="N_S_PER_M", help="pad damping D (default: --pad's)")
-    _add_pad_option(drop)
-    drop.add_argument("--velocity", type=_float, default=0.0373, metavar="M_PER_S", help="impact speed")
+    drop.add_argument(
+        "--mass", type=_number(0.0, LOAD_CAPACITY_KG, "kg"), default=LOAD_CAPACITY_KG, metavar="KG", help="lander mass"
+    )
+    _add_pad_options(drop)
+    drop.add_argument(
+        "--velocity", type=_number(0.0, 10.0, "m/s"), default=0.0373, metavar="M_PER_S", help="impact speed"
+    )
     drop.add_argument("--json", action="store_true", help="print one JSON object")
     drop.set_defaults(handler=_cmd_drop)
 
@@ -306,17 +364,27 @@ def build_parser() -> argparse.ArgumentParser:
         help="a test weight placed at t = 0, or once the foot is HEIGHT_MM above the pad; repeat for more "
         "(replaces the condition's loads)",
     )
-    run.add_argument("--height", type=_float, metavar="MM", help="descent height of the foot above the pad")
-    run.add_argument("--controller", choices=CONTROLLER_NAMES, default="pid", help="baseline controller")
-    run.add_argument("--duration", type=_float, metavar="S", help="simulated time (default 30 s)")
-    run.add_argument("--seed", type=int, default=0, help="seed of sensor noise and drift")
     run.add_argument(
-        "--control-period", type=_float, default=1000.0, metavar="US", help="control period (paper: 1000/500/200/100)"
+        "--height", type=_number(MIN_HEIGHT_M * 1e3, 1e4, "mm", low_open=False), metavar="MM", help="descent height"
     )
-    run.add_argument("--ideal", action="store_true", help="switch every imperfection off")
-    _add_pad_option(run)
+    run.add_argument("--controller", choices=CONTROLLER_NAMES, default="pid", help="baseline controller")
+    _add_duration_option(run, "simulated time (default 30 s)")
+    run.add_argument("--seed", type=_seed, default=0, help="seed of sensor noise and drift")
+    low, high = (1e6 * v for v in CONTROL_PERIOD_RANGE_S)
+    run.add_argument(
+        "--control-period",
+        type=_number(low, high, "us", low_open=False),
+        default=1000.0,
+        metavar="US",
+        help="control period (paper: 1000/500/200/100)",
+    )
+    _add_physics_step_option(run)
+    run.add_argument("--ideal", action="store_true", help="switch every imperfection off (an ideal drive and rig)")
+    _add_pad_options(run)
     run.add_argument("--json", action="store_true", help="print one JSON object of metrics")
-    run.add_argument("--plot", metavar="FILE", help="write height, x, acceleration and pad force over time (PNG)")
+    run.add_argument(
+        "--plot", metavar="FILE", help="write height, x, acceleration and pad force over time (.png, .pdf, .svg)"
+    )
     run.set_defaults(handler=_cmd_run)
 
     reproduce = commands.add_parser(
@@ -325,17 +393,20 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run conditions 1-3 with the PID baseline, with Table 1's pad and with the calibrated pad, and "
         "write a Markdown report with the equivalents of the paper's Figures 3-7 and Tables 3-6.",
     )
-    reproduce.add_argument("--out", default="results/reproduction", metavar="DIR", help="report folder (replaced)")
-    reproduce.add_argument("--duration", type=_float, metavar="S", help="simulated time per condition (default 30)")
-    reproduce.add_argument("--seed", type=int, default=0, help="seed of sensor noise and drift")
+    reproduce.add_argument("--out", default=DEFAULT_REPORT_DIR, metavar="DIR", help="report folder (replaced)")
+    _add_duration_option(reproduce, "simulated time per run (default 30)")
+    reproduce.add_argument("--seed", type=_seed, default=0, help="seed of sensor noise and drift")
     reproduce.add_argument("--quiet", action="store_true", help="no progress bar")
     reproduce.set_defaults(handler=_cmd_reproduce)
 
     calibrate = commands.add_parser(
         "calibrate",
         help="fit the pad's K and D to the paper's experiments",
-        description="Fit the pad's effective stiffness and damping by least squares to the experimental peak "
-        "deformations and collision accelerations of Tables 5-6, and print the fit and its residuals.",
+        description="Fit the pad's effective stiffness and damping by least squares to the peak deformations and "
+        "collision accelerations of Tables 5-6 (the experiments, or the paper's simulation), and print the fit.",
+    )
+    calibrate.add_argument(
+        "--source", choices=("experiment", "simulation"), default="experiment", help="which of the paper's values"
     )
     calibrate.add_argument("--json", action="store_true", help="print one JSON object")
     calibrate.set_defaults(handler=_cmd_calibrate)
@@ -345,16 +416,32 @@ def build_parser() -> argparse.ArgumentParser:
         help="write the resolved rig model (every derived value filled in) as one MJCF file",
         description="Write the rig built from the default parameters as a self-contained MJCF file.",
     )
-    export.add_argument("output", metavar="FILE", help="MJCF file to write")
-    export.add_argument("--load", type=_float, action="append", default=[], metavar="KG", help="add a test weight")
-    _add_pad_option(export)
+    export.add_argument("output", metavar="FILE", help="MJCF file to write (.xml)")
+    export.add_argument(
+        "--load",
+        type=_number(MIN_LOAD_KG, LOAD_CAPACITY_KG / 99.0, "kg", low_open=False),
+        action="append",
+        default=[],
+        metavar="KG",
+        help="add a test weight",
+    )
+    _add_pad_options(export)
+    _add_physics_step_option(export)
     export.set_defaults(handler=_cmd_export_mjcf)
     return parser
 
 
+def _check_top_level(argv: list[str]) -> None:
+    """An option before the command: name it (argparse would only say the command is missing)."""
+    if argv and argv[0].startswith("-") and argv[0] not in ("-h", "--help"):
+        raise UsageError(f"microg: error: unrecognized option {argv[0]!r}; give a command first (microg --help)")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``microg`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:
+        _check_top_level(argv)
         args = build_parser().parse_args(argv)
         return args.handler(args)
     except UsageError as error:
@@ -363,6 +450,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as error:
         print(f"microg: error: {error}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # The reader went away (| head): stop quietly, as Python's documentation recommends.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
 
 
 if __name__ == "__main__":

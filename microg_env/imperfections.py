@@ -1,10 +1,12 @@
 """The real rig's imperfections, each switchable, and domain randomisation for training.
 
 :class:`Imperfections` says which non-ideal effects are on (all by default). Those that live in the
-MuJoCo model (servo lag, torque limit, friction, cogging) are applied to the parameters by
-:func:`apply_imperfections`; the environment applies the others (sensor noise and quantisation,
-one control period of command delay, balancer drift) while it steps. :class:`DomainRandomization`
-draws a perturbed rig and load for each episode.
+MuJoCo model (friction, cogging, the torque limit) are removed from the parameters by
+:func:`apply_imperfections`; the drive's lag is removed by building the ideal drive (a speed
+source, :func:`microg_env.sim.model.build_rig`); the environment applies the others (sensor noise
+and quantisation, one control period of command delay, balancer drift) while it steps.
+:class:`DomainRandomization` draws a perturbed lander, pad, friction and set of test weights for
+each episode; every draw is a model field value, so a reset never recompiles.
 """
 
 from __future__ import annotations
@@ -14,20 +16,23 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from microg_env import validate
 from microg_env.params import LOAD_CAPACITY_KG, RigParams
-from microg_env.scenarios import LoadStep, Scenario
+from microg_env.scenarios import Scenario
+from microg_env.sim.limits import check_pad
+from microg_env.sim.model import validate_loads
 
 
 @dataclass(frozen=True)
 class Imperfections:
     """Which non-ideal effects are simulated; values and reasons are in params.py."""
 
-    #: The drive's PI speed loop (100 Hz, ServoParams). Off: the loop runs at the fastest gain the
-    #: physics step resolves, Kv = 1/(4 dt) Hz (500 Hz at 0.5 ms), a near-ideal speed source.
+    #: The drive's PI speed loop (100 Hz), its torque filter and its torque limit. Off: an ideal
+    #: drive, a speed source that follows the reference exactly, with no lag and no chatter.
     servo_lag: bool = True
     #: The drive's peak torque (119 N m). Off: unlimited torque.
     torque_limit: bool = True
-    #: LuGre friction of screw and nut, the screw's viscous loss, the QZS guide's friction and damping.
+    #: LuGre friction of screw and nut and of the QZS guide, the screw's and the guide's viscous loss.
     friction: bool = True
     #: Motor cogging torque (0.5 % of rated, 72 cycles per revolution).
     cogging: bool = True
@@ -38,6 +43,11 @@ class Imperfections:
     #: The balancer's force drifts with its gas temperature (BalancerDriftParams).
     balancer_drift: bool = True
 
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            if not isinstance(getattr(self, f.name), bool):
+                raise ValueError(f"Imperfections.{f.name} must be True or False, got {getattr(self, f.name)!r}")
+
     @classmethod
     def none(cls) -> Imperfections:
         """An ideal rig: every imperfection off."""
@@ -47,15 +57,12 @@ class Imperfections:
 def apply_imperfections(params: RigParams, imperfections: Imperfections) -> RigParams:
     """``params`` with the model-level imperfections that are off removed."""
     servo, screw, qzs = params.servo, params.screw, params.qzs
-    if not imperfections.servo_lag:
-        gain_hz = 0.25 / params.timestep_s
-        servo = replace(servo, speed_loop_gain_hz=gain_hz, speed_integral_time_s=4.0 / (2.0 * math.pi * gain_hz))
     if not imperfections.torque_limit:
         servo = replace(servo, peak_torque_n_m=math.inf)
     if not imperfections.friction:
         servo = replace(servo, bristle_stiffness_n_m_per_rad=0.0)
         screw = replace(screw, viscous_n_s_per_m=0.0)
-        qzs = replace(qzs, guide_friction_n=0.0, guide_damping_n_s_per_m=0.0)
+        qzs = replace(qzs, guide_friction_n=0.0, guide_static_friction_n=0.0, guide_damping_n_s_per_m=0.0)
     if not imperfections.cogging:
         servo = replace(servo, cogging_torque_n_m=0.0)
     return replace(params, servo=servo, screw=screw, qzs=qzs)
@@ -63,9 +70,14 @@ def apply_imperfections(params: RigParams, imperfections: Imperfections) -> RigP
 
 @dataclass(frozen=True)
 class DomainRandomization:
-    """Half-widths of uniform relative perturbations drawn at every reset (0 turns one off)."""
+    """Half-widths of uniform relative perturbations drawn at every reset (0 turns one off).
 
-    lander_mass: float = 0.02  # the lander is never heavier than the 620 kg capacity
+    The lander's mass is drawn in [M (1 - w), min(M (1 + w), 620 kg)]: never above the rig's
+    capacity. Friction scales the QZS guide's Coulomb friction and the motor's LuGre torques by
+    one factor. :meth:`check` rejects, before any episode, ranges that could draw an impossible rig.
+    """
+
+    lander_mass: float = 0.02
     load_mass: float = 0.05
     pad_stiffness: float = 0.3
     pad_damping: float = 0.3
@@ -73,23 +85,50 @@ class DomainRandomization:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            value = getattr(self, f.name)
-            if not (isinstance(value, int | float) and 0.0 <= value < 1.0):
-                raise ValueError(f"DomainRandomization.{f.name} must be in [0, 1), got {value!r}")
+            validate.between(f"DomainRandomization.{f.name}", getattr(self, f.name), 0.0, 1.0, high_open=True)
 
-    def sample(self, params: RigParams, scenario: Scenario, rng: np.random.Generator) -> tuple[RigParams, Scenario]:
-        """A perturbed copy of ``params`` and ``scenario``."""
+    def _lander_range(self, params: RigParams) -> tuple[float, float]:
+        mass = params.lander.mass_kg
+        return mass * (1.0 - self.lander_mass), min(mass * (1.0 + self.lander_mass), LOAD_CAPACITY_KG)
+
+    def check(self, params: RigParams, scenario: Scenario, physics_step_s: float) -> None:
+        """Raise ValueError if some draw for ``scenario`` on ``params`` would be an impossible rig."""
+        lightest, heaviest = self._lander_range(params)
+        most_load = sum(scenario.loads_kg) * (1.0 + self.load_mass)
+        limit = lightest / 99.0
+        if most_load > limit:
+            raise ValueError(
+                f"DomainRandomization.lander_mass {self.lander_mass!r} with load_mass {self.load_mass!r} can draw "
+                f"{most_load:.3g} kg of test weights on a {lightest:.3g} kg lander, above the {limit:.3g} kg "
+                f"that keeps the field within the rig's 1e-2 g range"
+            )
+        pad, g = params.pad, params.gravity_m_s2
+        for k_scale in (1.0 - self.pad_stiffness, 1.0 + self.pad_stiffness):
+            for d_scale in (1.0 - self.pad_damping, 1.0 + self.pad_damping):
+                for mass in (lightest, heaviest):
+                    drawn = replace(
+                        pad,
+                        stiffness_n_per_m=pad.stiffness_n_per_m * k_scale,
+                        damping_n_s_per_m=pad.damping_n_s_per_m * d_scale,
+                    )
+                    total = mass + most_load
+                    speed = scenario.impact_speed_m_s(mass, g) * math.sqrt(1.0 + self.load_mass)
+                    check_pad(drawn, total, speed, most_load * g, physics_step_s, "DomainRandomization's extreme draw")
+
+    def sample(
+        self, params: RigParams, loads_kg: tuple[float, ...], rng: np.random.Generator
+    ) -> tuple[RigParams, tuple[float, ...]]:
+        """A perturbed copy of ``params`` and of the test weights ``loads_kg``."""
 
         def scale(width: float) -> float:
             return float(rng.uniform(1.0 - width, 1.0 + width))
 
-        loads = tuple(LoadStep(load.mass_kg * scale(self.load_mass), load.height_m) for load in scenario.loads)
-        scenario = replace(
-            scenario,
-            loads=loads,
-            lander_mass_kg=min(scenario.lander_mass_kg * scale(self.lander_mass), LOAD_CAPACITY_KG),
-            pad_stiffness_n_per_m=scenario.pad_stiffness_n_per_m * scale(self.pad_stiffness),
-            pad_damping_n_s_per_m=scenario.pad_damping_n_s_per_m * scale(self.pad_damping),
+        loads = tuple(mass * scale(self.load_mass) for mass in loads_kg)
+        lander = replace(params.lander, mass_kg=float(rng.uniform(*self._lander_range(params))))
+        pad = replace(
+            params.pad,
+            stiffness_n_per_m=params.pad.stiffness_n_per_m * scale(self.pad_stiffness),
+            damping_n_s_per_m=params.pad.damping_n_s_per_m * scale(self.pad_damping),
         )
         f = scale(self.friction)
         servo = replace(
@@ -97,5 +136,10 @@ class DomainRandomization:
             coulomb_torque_n_m=params.servo.coulomb_torque_n_m * f,
             static_torque_n_m=params.servo.static_torque_n_m * f,
         )
-        qzs = replace(params.qzs, guide_friction_n=params.qzs.guide_friction_n * scale(self.friction))
-        return replace(params, servo=servo, qzs=qzs), scenario
+        qzs = replace(
+            params.qzs,
+            guide_friction_n=params.qzs.guide_friction_n * f,
+            guide_static_friction_n=params.qzs.guide_static_friction_n * f,
+        )
+        validate_loads(loads, lander.mass_kg)
+        return replace(params, lander=lander, pad=pad, servo=servo, qzs=qzs), loads

@@ -1,4 +1,4 @@
-"""Calibration of the pad to the paper's experiments (Tables 5 and 6)."""
+"""Calibration of the pad to the paper's experiments (Tables 5 and 6), and the stored fits."""
 
 import json
 
@@ -7,8 +7,17 @@ import pytest
 
 from microg_env.analysis.metrics import compute_metrics
 from microg_env.cli import main
-from microg_env.paper.calibration import LandingModel, calibrate, impact_speed_m_s, paper_targets, with_pad
+from microg_env.paper.calibration import (
+    LandingModel,
+    calibrate,
+    pad_params,
+    paper_targets,
+    stored_calibration,
+    stored_pads,
+    with_pad,
+)
 from microg_env.paper.tables import WORST_COLLISION_ERROR_PCT, WORST_DEFORMATION_ERROR_PCT
+from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS
 from microg_env.sim.reference import simulate_reference
 
@@ -40,20 +49,35 @@ def test_fit_is_a_least_squares_minimum(fit):
         assert cost(k * dk, d * dd) > best
 
 
+@pytest.mark.parametrize(("name", "source"), [("calibrated", "experiment"), ("paper-simulation", "simulation")])
+def test_stored_pads_are_what_the_calibration_gives(name, source, fit):
+    """config/pads.toml holds the fits with their provenance; they must follow the model."""
+    fresh = fit if source == "experiment" else calibrate(source=source)
+    stored = stored_calibration(name)
+    assert stored_pads()[name]["source"] == source
+    assert stored.stiffness_n_per_m == pytest.approx(fresh.stiffness_n_per_m, rel=1e-3)
+    assert stored.damping_n_s_per_m == pytest.approx(fresh.damping_n_s_per_m, rel=1e-3)
+    np.testing.assert_allclose(stored.max_deformation_pct, fresh.max_deformation_pct, atol=0.01)
+    np.testing.assert_allclose(stored.collision_accel_pct, fresh.collision_accel_pct, atol=0.01)
+
+
 def test_landing_model_matches_the_reference_landing():
-    scenario = CONDITIONS[3]
-    reference = simulate_reference(scenario, duration_s=12.0)
+    scenario, params = CONDITIONS[3], RigParams()
+    reference = simulate_reference(scenario, params, 1e-3, 1e-4, 20.0)
     metrics = compute_metrics(reference, reference)
-    depth, peak = LandingModel(scenario).land(scenario.pad_stiffness_n_per_m, scenario.pad_damping_n_s_per_m)
+    depth, peak = LandingModel(scenario).land(params.pad.stiffness_n_per_m, params.pad.damping_n_s_per_m)
     assert depth == pytest.approx(metrics.max_deformation_m, rel=2e-3)
     assert peak == pytest.approx(metrics.collision_accel_m_s2, rel=2e-3)
-    assert impact_speed_m_s(scenario, 9.8009) == pytest.approx(metrics.impact_speed_m_s, rel=1e-3)
+    assert scenario.impact_speed_m_s(620.0, 9.8009) == pytest.approx(metrics.impact_speed_m_s, rel=1e-3)
 
 
-def test_with_pad_names_the_bad_pad():
-    assert with_pad(CONDITIONS[1], "paper").pad_stiffness_n_per_m == 4666.0
-    with pytest.raises(ValueError, match="pad"):
-        with_pad(CONDITIONS[1], "foam")
+def test_pads_by_name():
+    assert with_pad(RigParams(), "paper").pad == RigParams().pad
+    calibrated = with_pad(RigParams(), "calibrated")
+    assert calibrated.pad.stiffness_n_per_m == stored_calibration("calibrated").stiffness_n_per_m
+    assert calibrated.pad.thickness_m == RigParams().pad.thickness_m  # only K and D change
+    with pytest.raises(ValueError, match="foam"):
+        pad_params("foam")
 
 
 def test_calibrate_json(capsys, fit):
@@ -66,9 +90,10 @@ def test_calibrate_json(capsys, fit):
     assert result["residuals"]["collision_accel_pct"] == pytest.approx(list(fit.collision_accel_pct))
 
 
-def test_calibrated_pad_is_selectable(capsys, fit):
+def test_calibrated_pad_is_selectable(capsys):
+    stored = stored_calibration("calibrated")
     assert main(["drop", "--pad", "calibrated", "--json"]) == 0
     drop = json.loads(capsys.readouterr().out)
-    assert drop["fitted_stiffness_n_per_m"]["analytic"] == pytest.approx(fit.stiffness_n_per_m)
+    assert drop["fitted_stiffness_n_per_m"]["analytic"] == pytest.approx(stored.stiffness_n_per_m)
     assert main(["run", "--pad", "calibrated", "--duration", "2"]) == 0
-    assert f"K = {fit.stiffness_n_per_m:.1f} N/m" in capsys.readouterr().out
+    assert f"K = {stored.stiffness_n_per_m:.1f} N/m" in capsys.readouterr().out

@@ -1,21 +1,32 @@
-"""The microg command: output, JSON and one-line errors with exit code 2."""
+"""The microg command: output, JSON, and one-line errors with exit code 2 for any bad input."""
 
+import io
 import json
+import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import mujoco
 import pytest
 
+from microg_env import cli
 from microg_env.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _run(*args: str) -> subprocess.CompletedProcess:
+def _run(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:
+    environment = {**os.environ, "PYTHONPATH": str(REPO)}
     return subprocess.run(
-        [sys.executable, "-m", "microg_env.cli", *args], capture_output=True, text=True, cwd=REPO, check=False
+        [sys.executable, "-m", "microg_env.cli", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env=environment,
+        check=False,
+        timeout=120,
     )
 
 
@@ -45,50 +56,95 @@ def test_drop_table_names_the_quantities(capsys):
     assert "M = 300 kg" in out
 
 
-@pytest.mark.parametrize(
-    ("args", "word"),
-    [
-        (["drop", "--mass", "0"], "mass"),
-        (["drop", "--mass", "-620"], "mass"),
-        (["drop", "--mass", "nan"], "mass"),
-        (["drop", "--mass", "700"], "700"),
-        (["drop", "--stiffness", "0"], "stiffness"),
-        (["drop", "--damping", "-1"], "damping"),
-        (["drop", "--damping", "5000"], "over-damped"),
-        (["drop", "--velocity", "0"], "velocity"),
-        (["drop", "--velocity", "2"], "thickness"),
-        (["drop", "--mass", "heavy"], "heavy"),
-        (["drop", "--bogus"], "--bogus"),
-        (["fly"], "fly"),
-        (["export-mjcf", "/nonexistent-folder/rig.xml"], "nonexistent-folder"),
-        (["run", "--condition", "4"], "--condition"),
-        (["run", "--load", "heavy"], "heavy"),
-        (["run", "--load", "-0.05"], "mass_kg"),
-        (["run", "--load", "0.05@20"], "t = 0"),
-        (["run", "--load", "0.05", "--load", "1@100"], "descent height"),
-        (["run", "--load", "0.05", "--load", "9"], "1e-2 g"),
-        (["run", "--height", "600"], "descent_height_m"),
-        (["run", "--height", "-5"], "descent_height_m"),
-        (["run", "--controller", "lqr"], "--controller"),
-        (["run", "--duration", "0"], "duration_s"),
-        (["run", "--control-period", "0"], "control_period_s"),
-        (["run", "--plot", "/nonexistent-folder/run.png"], "nonexistent-folder"),
-        (["run", "--pad", "foam"], "--pad"),
-        (["reproduce", "--out", "/nonexistent-folder/reproduction"], "nonexistent-folder"),
-        (["reproduce", "--duration", "-1"], "duration"),
-        (["reproduce", "--out", "."], "not a report"),
-        (["reproduce", "--seed", "x"], "--seed"),
-        (["calibrate", "--bogus"], "--bogus"),
-    ],
-)
-def test_bad_input_is_one_line_and_exit_2(args, word):
-    result = _run(*args)
-    assert result.returncode == 2
+#: Each option with values it must refuse (beside the generic ones below), and the word the
+#: one-line error must contain.
+NUMERIC_OPTIONS = {
+    ("drop", "--mass"): "mass",
+    ("drop", "--stiffness"): "stiffness",
+    ("drop", "--damping"): "damping",
+    ("drop", "--velocity"): "velocity",
+    ("run", "--height"): "height",
+    ("run", "--duration"): "duration",
+    ("run", "--control-period"): "control",
+    ("run", "--physics-step"): "physics",
+    ("run", "--stiffness"): "stiffness",
+    ("run", "--damping"): "damping",
+    ("run", "--seed"): "seed",
+    ("run", "--load"): "load",
+    ("reproduce", "--duration"): "duration",
+    ("reproduce", "--seed"): "seed",
+    ("export-mjcf /tmp/never-written.xml", "--load"): "load",
+    ("export-mjcf /tmp/never-written.xml", "--physics-step"): "physics",
+}
+#: Negative, zero, NaN, infinities, huge, tiny, empty, wrong type.
+BAD_NUMBERS = ["-1", "0", "nan", "inf", "-inf", "1e300", "1e-300", "", "ten", "0x10", "1,5"]
+CHOICE_OPTIONS = {
+    ("run", "--condition"): ["0", "4", "1.5", "one", ""],
+    ("run", "--controller"): ["lqr", ""],
+    ("run", "--pad"): ["foam", ""],
+    ("drop", "--pad"): ["foam"],
+    ("calibrate", "--source"): ["guess"],
+}
+PATH_OPTIONS = {
+    ("run", "--plot"): ["", "myplot", "{dir}", "/nonexistent-folder/run.png", "/proc/run.png"],
+    ("reproduce", "--out"): ["", ".", "{file}", "/nonexistent-folder/reproduction"],
+    ("export-mjcf",): ["", "{dir}", "rig.txt", "/nonexistent-folder/rig.xml", "/dev/stdout"],
+}
+
+
+def _cases():
+    for (command, option), word in NUMERIC_OPTIONS.items():
+        for value in BAD_NUMBERS:
+            if option == "--seed" and value == "0":
+                continue  # seed 0 is a good seed
+            yield [*command.split(), option, value], word
+    for (command, option), values in CHOICE_OPTIONS.items():
+        for value in values:
+            yield [command, option, value], option.lstrip("-")
+    for key, values in PATH_OPTIONS.items():
+        for value in values:
+            args = [key[0], value] if len(key) == 1 else [key[0], key[1], value]
+            yield args, "FILE" if len(key) == 1 else key[1]
+    for command in ("drop", "run", "reproduce", "calibrate", "export-mjcf /tmp/never-written.xml"):
+        yield [*command.split(), "--bogus"], "--bogus"
+    yield ["--bogus"], "--bogus"
+    yield ["fly"], "fly"
+    yield [], "command"
+    # Values that are each fine alone but not together, or not for this rig.
+    yield ["run", "--control-period", "150"], "control_period"
+    yield ["run", "--height", "600"], "height"
+    yield ["run", "--load", "0.05", "--load", "9"], "1e-2 g"
+    yield ["run", "--load", "0.05@20"], "t = 0"
+    yield ["run", "--load", "0.05", "--load", "1@100"], "descent height"
+    yield ["run", "--stiffness", "1e10"], "stiffness"
+    yield ["run", "--stiffness", "10"], "stiffness"
+    yield ["run", "--damping", "5000"], "damping"
+    yield ["run", "--duration", "600", "--control-period", "100"], "steps"
+    yield ["drop", "--mass", "700"], "mass"
+    yield ["drop", "--velocity", "0.32"], "thickness"
+    yield ["drop", "--mass", "1e-6"], "mass"
+
+
+@pytest.mark.parametrize(("args", "word"), list(_cases()), ids=lambda v: " ".join(v) if isinstance(v, list) else v)
+def test_bad_input_is_one_line_naming_the_option_exit_2_and_writes_nothing(args, word, tmp_path):
+    folder = tmp_path / "cwd"
+    folder.mkdir()
+    (folder / "existing-dir").mkdir()
+    (folder / "existing-file").write_text("keep")
+    args = [a.replace("{dir}", "existing-dir").replace("{file}", "existing-file") for a in args]
+    before = sorted(p.name for p in folder.iterdir())
+    start = time.perf_counter()
+    result = _run(*args, cwd=folder)
+    assert time.perf_counter() - start < 60
+    assert result.returncode == 2, result.stderr + result.stdout
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1, result.stderr
-    assert word in lines[0]
+    assert word.lower() in lines[0].lower(), lines[0]
     assert "Traceback" not in result.stderr
     assert result.stdout == ""
+    assert sorted(p.name for p in folder.iterdir()) == before
+    assert (folder / "existing-file").read_text() == "keep"
+    assert not Path("/tmp/never-written.xml").exists()
 
 
 def test_export_mjcf_writes_a_model_that_compiles(tmp_path, capsys):
@@ -98,6 +154,13 @@ def test_export_mjcf_writes_a_model_that_compiles(tmp_path, capsys):
     assert model.body("load_0").mass[0] == pytest.approx(0.05)
     assert model.geom_solref[model.geom("pad").id, 0] < 0  # the computed pad contact is in it
     assert list(tmp_path.iterdir()) == [out]  # no temporary file left behind
+    assert out.stat().st_mode & 0o777 == 0o666 & ~_umask()  # the usual permissions, not 0600
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def test_run_json_keys_and_signs(capsys, run_json_keys):
@@ -107,6 +170,21 @@ def test_run_json_keys_and_signs(capsys, run_json_keys):
     assert result["ideal_descent_accel_m_s2"] == [pytest.approx(-1.0 * 9.8009 / 621.0)]
     assert result["descent_accel_m_s2"][0] < 0  # down is negative
     assert result["collision_accel_m_s2"] > 0  # the pad pushes up
+
+
+def test_run_ending_on_the_pad_reports_null_with_reasons_not_wrong_numbers(capsys):
+    """Condition 1 cut at 5.5 s ends during the first contact: it printed -11.6 % before."""
+    assert main(["run", "--condition", "1", "--duration", "5.5", "--json"]) == 0
+    short = json.loads(capsys.readouterr().out)
+    assert main(["run", "--condition", "1", "--duration", "12", "--json"]) == 0
+    full = json.loads(capsys.readouterr().out)
+    assert short["compensation_error_pct"][0] == pytest.approx(full["compensation_error_pct"][0], abs=0.02)
+    assert short["restitution"] is None
+    assert short["unavailable"]["restitution"] == "the run ended before the first lift-off"
+    assert main(["run", "--height", "0.5", "--duration", "5", "--json"]) == 0
+    low = json.loads(capsys.readouterr().out)
+    assert low["compensation_error_pct"] == [None]
+    assert "descent fit needs" in low["unavailable"]["descent_accel_m_s2[0]"]
 
 
 def test_run_custom_loads_table_and_plot(tmp_path, capsys):
@@ -119,3 +197,31 @@ def test_run_custom_loads_table_and_plot(tmp_path, capsys):
     assert "compensation error" in out
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert list(tmp_path.iterdir()) == [plot]
+
+
+def test_run_custom_pad_and_physics_step(capsys):
+    assert main(["run", "--stiffness", "8000", "--damping", "250", "--physics-step", "50", "--duration", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "K = 8000.0 N/m, D = 250.0 N s/m" in out
+    assert "physics step 50 us" in out
+
+
+def test_a_closed_reader_ends_quietly(monkeypatch):
+    """`microg drop | head -1`: the reader goes away; no BrokenPipeError traceback."""
+
+    class ClosedPipe(io.StringIO):
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def fileno(self):
+            return os.open(os.devnull, os.O_WRONLY)
+
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    assert cli.main(["drop"]) == 1
+
+
+def test_output_piped_into_a_closed_reader_leaves_no_traceback(tmp_path):
+    errors = tmp_path / "stderr.txt"
+    command = f"{sys.executable} -m microg_env.cli drop 2>{errors} | true"
+    subprocess.run(command, shell=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, check=False)
+    assert "Traceback" not in errors.read_text()

@@ -1,46 +1,44 @@
-"""The Gymnasium environment: conformance, determinism, pickling, vectorisation, bad input."""
+"""The Gymnasium environment: conformance, determinism, copies, vectorisation, bad input, failures."""
 
+import copy
+import os
 import pickle
+import subprocess
+import sys
 
+import cloudpickle
 import gymnasium as gym
 import numpy as np
 import pytest
+from gymnasium.error import ResetNeeded
 from gymnasium.utils.env_checker import check_env
 
-import microg_env
 from microg_env import Imperfections, LoadStep, Scenario
-from microg_env.analysis.evaluate import run_episode
-from microg_env.controllers import make_controller
 from microg_env.envs.landing import OBSERVATION_SCALES, MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
 
 ENV_ID = "microg_env:MicroGravityLanding-v0"
 
 
-@pytest.fixture(autouse=True)
-def _quiet_gymnasium_warnings():
-    # Unbounded observation boxes draw a Gymnasium warning; physical quantities are unbounded.
-    gym.logger.min_level = 40
-    yield
-    gym.logger.min_level = 30
-
-
-def _rollout(env: gym.Env, seed: int, steps: int, action: float = 0.1) -> tuple[np.ndarray, list[dict]]:
+def _rollout(env: gym.Env, seed: int | None, steps: int, action: float = 0.1) -> tuple[np.ndarray, list[dict]]:
     obs, info = env.reset(seed=seed)
     observations, infos = [obs], [info]
     for _ in range(steps):
-        obs, _, terminated, _, info = env.step(np.array([action], dtype=np.float32))
+        obs, _, terminated, truncated, info = env.step(np.array([action], dtype=np.float32))
         observations.append(obs)
         infos.append(info)
-        if terminated:
+        if terminated or truncated:
             break
     return np.array(observations), infos
+
+
+def _steps(env: gym.Env, steps: int, action: float = -0.01) -> np.ndarray:
+    return np.array([env.step(np.array([action], dtype=np.float32))[0] for _ in range(steps)])
 
 
 def test_registered_and_made_by_id():
     env = gym.make(ENV_ID)
     assert isinstance(env.unwrapped, MicroGravityLandingEnv)
-    assert env.spec.max_episode_steps == microg_env.MAX_EPISODE_STEPS == 30_000
     assert env.action_space == gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
     assert env.observation_space.shape == (len(OBSERVATION_SCALES),)
 
@@ -65,13 +63,24 @@ def test_same_seed_same_trajectory_other_seed_other_noise():
     assert not np.array_equal(first, other)
 
 
-def test_pickles_and_runs_after_unpickling():
-    env = gym.make(ENV_ID, condition=3, control_period_s=5e-4)
-    clone = pickle.loads(pickle.dumps(env))
-    a, _ = _rollout(env, seed=3, steps=50)
-    b, _ = _rollout(clone, seed=3, steps=50)
-    np.testing.assert_array_equal(a, b)
-    assert clone.unwrapped.control_period_s == 5e-4
+@pytest.mark.parametrize(
+    "copier",
+    [lambda env: pickle.loads(pickle.dumps(env)), lambda env: cloudpickle.loads(cloudpickle.dumps(env)), copy.deepcopy],
+    ids=["pickle", "cloudpickle", "deepcopy"],
+)
+@pytest.mark.parametrize("made", [True, False], ids=["gym.make", "raw"])
+def test_a_copy_made_mid_episode_continues_exactly_as_the_original(copier, made):
+    env = gym.make(ENV_ID, condition=3) if made else MicroGravityLandingEnv(condition=3)
+    env.reset(seed=3)
+    _steps(env, 40)
+    clone = copier(env)
+    np.testing.assert_array_equal(_steps(env, 60), _steps(clone, 60))
+    assert clone.unwrapped.data.time == env.unwrapped.data.time
+
+
+def test_stepping_before_reset_asks_for_a_reset():
+    with pytest.raises(ResetNeeded, match="reset"):
+        MicroGravityLandingEnv().step(np.zeros(1, dtype=np.float32))
 
 
 def test_runs_under_subproc_vec_env():
@@ -91,16 +100,34 @@ def test_runs_under_subproc_vec_env():
 
 
 @pytest.mark.parametrize("period", [1e-3, 5e-4, 2e-4, 1e-4])
-def test_control_periods_of_the_paper(period):
+def test_control_periods_of_the_paper_share_one_physics_step(period):
     env = MicroGravityLandingEnv(condition=1, control_period_s=period)
-    assert env.frame_skip * env.model.opt.timestep == pytest.approx(period)
-    assert env.model.opt.timestep <= env.base_params.timestep_s
+    assert env.model.opt.timestep == env.physics_step_s == 1e-4
+    assert env.frame_skip * env.physics_step_s == pytest.approx(period)
     _, infos = _rollout(env, seed=0, steps=10, action=0.0)
     assert infos[-1]["time_s"] == pytest.approx(10 * period)
 
 
+def test_physics_step_is_a_keyword():
+    env = MicroGravityLandingEnv(condition=1, physics_step_s=5e-5)
+    assert env.model.opt.timestep == 5e-5
+    assert env.frame_skip == 20
+
+
+def test_episode_is_truncated_at_the_scenario_duration_at_any_period():
+    scenario = Scenario("short", (LoadStep(0.49),), descent_height_m=0.09, duration_s=0.05)
+    for period in (1e-3, 1e-4):
+        env = gym.make(ENV_ID, scenario=scenario, control_period_s=period)
+        _, infos = _rollout(env, seed=0, steps=10_000, action=0.0)
+        assert len(infos) - 1 == round(0.05 / period)
+        assert infos[-1]["time_s"] == pytest.approx(0.05)
+
+
 def test_starts_balanced_and_places_loads_on_schedule():
     env = MicroGravityLandingEnv(condition=3, imperfections=Imperfections.none())
+    from microg_env.analysis.evaluate import run_episode
+    from microg_env.controllers.pid import make_controller
+
     trajectory = run_episode(env, make_controller("pid", env.control_period_s), seed=0, duration_s=11.0)
     assert trajectory.foot_height_m[0] == pytest.approx(0.055, abs=1e-12)
     assert trajectory.x_m[0] == 0.0
@@ -153,6 +180,26 @@ def test_guide_stroke_limit_terminates_with_a_reason():
     assert len(infos) < 2001
 
 
+def test_the_foot_never_tunnels_through_the_pad():
+    """Driving the support down at 125 mm/s sinks the foot to the pad's full depth: the pad pushes
+    back at every depth (the old box pad pulled the lander through past 75 mm) and the episode
+    ends where the foot bottoms out on the floor. (A restoring QZS makes the uncontrolled lander go
+    down with the support; with Eq. 17's literal sign it would leave the guide first.)"""
+    from microg_env.params import QZSParams, RigParams
+
+    params = RigParams(qzs=QZSParams(residual_stiffness_n_per_m=35510.0))
+    env = MicroGravityLandingEnv(condition=1, params=params, imperfections=Imperfections(control_delay=False))
+    _, infos = _rollout(env, seed=0, steps=5000, action=-0.1)
+    heights = np.array([i["foot_height_m"] for i in infos])
+    forces = np.array([i["pad_force_n"] for i in infos])
+    deep = heights < -0.07
+    assert heights.min() < -0.076  # past the depth where the old pad's contact normal flipped
+    assert np.all(forces[heights < -1e-4] > 0.0)  # the pad pushes whenever the foot is in it
+    assert np.all(np.diff(forces[deep]) > 0.0)  # and harder the deeper it goes
+    assert infos[-1]["termination_reason"] in ("pad_bottomed_out", "screw_stroke_limit")
+    assert heights.min() > -0.1
+
+
 def test_out_of_range_actions_are_clipped():
     env = MicroGravityLandingEnv(condition=1, imperfections=Imperfections.none())
     env.reset(seed=0)
@@ -161,7 +208,7 @@ def test_out_of_range_actions_are_clipped():
 
 
 @pytest.mark.parametrize(
-    "action", [np.array([np.nan]), np.array([np.inf]), np.array([0.1, 0.2]), np.array([[0.1]]), 0.3]
+    "action", [np.array([np.nan]), np.array([np.inf]), np.array([0.1, 0.2]), np.array([[0.1]]), 0.3, "up", None]
 )
 def test_bad_actions_raise(action):
     env = MicroGravityLandingEnv(condition=1)
@@ -174,12 +221,26 @@ def test_bad_actions_raise(action):
     ("kwargs", "field"),
     [
         ({"condition": 4}, "condition"),
+        ({"condition": True}, "condition"),
         ({"control_period_s": 0.0}, "control_period_s"),
         ({"control_period_s": float("nan")}, "control_period_s"),
+        ({"control_period_s": 1e-9}, "control_period_s"),
+        ({"control_period_s": 1.0}, "control_period_s"),
+        ({"control_period_s": 1.5e-4}, "whole number of physics steps"),
+        ({"physics_step_s": 1e-9}, "physics_step_s"),
+        ({"physics_step_s": 2e-3}, "physics_step_s"),
         ({"compensation_scale": -1.0}, "compensation_scale"),
+        ({"reset_noise_scale": 0.3}, "reset_noise_scale"),
+        ({"reset_noise_scale": -0.01}, "reset_noise_scale"),
         ({"render_mode": "ascii"}, "render_mode"),
         ({"imperfections": "all"}, "imperfections"),
+        ({"params": {"pad": 1}}, "params"),
+        ({"width": 0}, "width"),
+        ({"height": -5}, "height"),
+        ({"camera_name": "nope"}, "camera_name"),
+        ({"xml_file": "/nonexistent/scene.xml"}, "xml_file"),
         ({"scenario": Scenario("tall", (LoadStep(0.49),), descent_height_m=0.5)}, "descent_height_m"),
+        ({"scenario": Scenario("long", (LoadStep(0.49),), 0.09, duration_s=600.0), "control_period_s": 1e-4}, "steps"),
     ],
 )
 def test_bad_arguments_name_the_field(kwargs, field):
@@ -187,15 +248,35 @@ def test_bad_arguments_name_the_field(kwargs, field):
         MicroGravityLandingEnv(**kwargs)
 
 
+def test_reset_noise_keeps_the_start_above_the_pad_and_every_switch_height():
+    """Condition 3 with 0.06 m of noise started the foot 4.5 mm inside the pad (seed 34); the bound
+    is now the room above the 25 mm switch height, and every start respects it."""
+    with pytest.raises(ValueError, match="reset_noise_scale"):
+        MicroGravityLandingEnv(condition=3, reset_noise_scale=0.06)
+    env = MicroGravityLandingEnv(condition=3, reset_noise_scale=0.028)
+    for seed in range(60):
+        _, info = env.reset(seed=seed)
+        assert info["foot_height_m"] > 0.025
+        assert info["placed_load_kg"] == pytest.approx(0.05)  # the 1 kg is not placed at the start
+        assert info["pad_force_n"] == 0.0
+
+
+def test_bad_seed_is_named():
+    with pytest.raises(ValueError, match="seed"):
+        MicroGravityLandingEnv().reset(seed=-1)
+
+
 @pytest.mark.parametrize(
     ("build", "field"),
     [
         (lambda: Scenario("s", (), 0.09), "loads"),
         (lambda: Scenario("s", (LoadStep(0.49),), -0.09), "descent_height_m"),
-        (lambda: Scenario("s", (LoadStep(0.49),), 0.09, pad_damping_n_s_per_m=0.0), "pad_damping_n_s_per_m"),
+        (lambda: Scenario("s", (LoadStep(0.49),), 0.09, duration_s=601.0), "duration_s"),
+        (lambda: Scenario("s", (LoadStep(0.49),), 0.09, overrides={"pad.softness": 1.0}), "pad.softness"),
         (lambda: Scenario("s", (LoadStep(0.05), LoadStep(1.0, 0.1)), 0.09), "descent height"),
         (lambda: Scenario("s", (LoadStep(0.05, 0.02),), 0.09), "t = 0"),
         (lambda: LoadStep(-1.0), "mass_kg"),
+        (lambda: LoadStep(True), "mass_kg"),
         (lambda: LoadStep(1.0, float("inf")), "height_m"),
     ],
 )
@@ -204,16 +285,80 @@ def test_bad_scenarios_name_the_field(build, field):
         build()
 
 
-def test_domain_randomization_changes_the_rig_each_reset():
+def test_domain_randomization_changes_the_rig_each_reset_without_recompiling():
     env = MicroGravityLandingEnv(condition=1, domain_randomization=DomainRandomization())
+    model = env.model
     env.reset(seed=0)
-    first = (env.active_scenario.pad_stiffness_n_per_m, env.active_scenario.loads[0].mass_kg)
+    first = (env.params.pad.stiffness_n_per_m, env.active_scenario.loads[0].mass_kg, env.params.lander.mass_kg)
     env.reset(seed=1)
-    second = (env.active_scenario.pad_stiffness_n_per_m, env.active_scenario.loads[0].mass_kg)
+    second = (env.params.pad.stiffness_n_per_m, env.active_scenario.loads[0].mass_kg, env.params.lander.mass_kg)
     assert first != second
-    assert env.active_scenario.lander_mass_kg <= 620.0
+    assert env.params.lander.mass_kg <= 620.0
+    assert env.model is model  # the same compiled model, its field values changed
+    assert env.model.body("lander").mass[0] == env.params.lander.mass_kg
     env.reset(seed=0)
-    assert (env.active_scenario.pad_stiffness_n_per_m, env.active_scenario.loads[0].mass_kg) == first
+    assert (env.params.pad.stiffness_n_per_m, env.active_scenario.loads[0].mass_kg, env.params.lander.mass_kg) == first
+
+
+def test_impossible_randomisation_is_rejected_at_construction():
+    """A 99 % lander-mass range could draw a 6 kg lander under 0.5 kg of weights: reset used to fail
+    on some seeds and leave the environment half-updated."""
+    with pytest.raises(ValueError, match="lander_mass"):
+        MicroGravityLandingEnv(condition=1, domain_randomization=DomainRandomization(lander_mass=0.99))
+    with pytest.raises(ValueError, match="thickness"):  # a 47 N/m pad would bottom out
+        MicroGravityLandingEnv(condition=1, domain_randomization=DomainRandomization(pad_stiffness=0.99))
+
+
+def test_a_failed_reset_leaves_the_environment_exactly_as_it_was(monkeypatch):
+    env = MicroGravityLandingEnv(condition=1, domain_randomization=DomainRandomization())
+    env.reset(seed=5)
+    _steps(env, 20)
+    before = pickle.dumps(env)
+    expected = _steps(copy.deepcopy(env), 30)
+
+    def failing_sample(*args, **kwargs):
+        raise ValueError("a draw the rig cannot take")
+
+    monkeypatch.setattr(DomainRandomization, "sample", failing_sample)
+    with pytest.raises(ValueError, match="draw"):
+        env.reset(seed=6)
+    monkeypatch.undo()
+    assert pickle.dumps(env) == before
+    np.testing.assert_array_equal(_steps(env, 30), expected)
+
+
+def test_every_parameter_passed_in_reaches_the_episode_the_model_and_the_reference():
+    from dataclasses import replace
+
+    from microg_env.analysis.evaluate import reference_for, run_episode
+    from microg_env.controllers.pid import make_controller
+    from microg_env.params import LanderParams, PadParams, RigParams
+
+    params = replace(RigParams(), pad=PadParams(stiffness_n_per_m=8000.0), lander=LanderParams(mass_kg=500.0))
+    env = gym.make(ENV_ID, params=params)
+    trajectory = run_episode(env, make_controller("pid", 1e-3), seed=0, duration_s=6.0)
+    rig_env = env.unwrapped
+    assert rig_env.params.pad.stiffness_n_per_m == 8000.0
+    assert rig_env.params.lander.mass_kg == 500.0
+    assert rig_env.model.body("lander").mass[0] == 500.0
+    model, pad = rig_env.model, rig_env.model.geom("pad").id
+    n, d = rig_env.rig.pad_contacts, params.pad.impedance
+    carried = 500.0 + 0.49
+    assert -model.geom_solref[pad, 0] * n * carried / (1 + (n - 1) * d) == pytest.approx(8000.0)
+    assert trajectory.lander_mass_kg == 500.0
+    reference = reference_for(env, trajectory)
+    assert reference.lander_mass_kg == 500.0
+    # The reference falls at m g / (M + m) of the 500 kg lander.
+    t, h = reference.time_s[500:4000], reference.foot_height_m[500:4000]  # the free fall
+    assert 2 * np.polyfit(t, h, 2)[0] == pytest.approx(-0.49 * 9.8009 / 500.49, rel=1e-6)
+
+
+def test_scenario_overrides_are_explicit_and_apply_on_top_of_params():
+    scenario = Scenario("stiff pad", (LoadStep(0.49),), 0.09, overrides={"pad.stiffness_n_per_m": 9000.0})
+    env = MicroGravityLandingEnv(scenario=scenario)
+    assert env.params.pad.stiffness_n_per_m == 9000.0
+    assert env.params.pad.damping_n_s_per_m == 200.0  # nothing else changes
+    assert env.params.lander.mass_kg == 620.0
 
 
 def test_rgb_array_render():
@@ -228,3 +373,11 @@ def test_rgb_array_render():
     assert frame.shape == (120, 160, 3)
     assert frame.dtype == np.uint8
     assert frame.std() > 0
+
+
+def test_human_render_without_a_display_is_a_clear_error_not_an_abort():
+    code = "import microg_env; microg_env.MicroGravityLandingEnv(render_mode='human')"
+    environment = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MUJOCO_GL")}
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=False)
+    assert result.returncode == 1  # a Python exception, not SIGABRT (-6)
+    assert "render_mode='human' needs a display" in result.stderr

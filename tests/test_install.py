@@ -1,11 +1,14 @@
-"""A wheel built from the repository carries the MJCF and works from any folder.
+"""A fresh clone runs the README's quick start; a wheel carries the MJCF and works from any folder.
 
-The wheel is installed (not editable) into a fresh virtual environment. Its dependencies
-(mujoco, gymnasium, numpy) are borrowed from the environment running the tests through a .pth
-line, so the test needs no network; the package itself must come from the new environment.
+The package is installed (not editable) into a fresh virtual environment. Its dependencies
+(mujoco, gymnasium, numpy, matplotlib) are borrowed from the environment running the tests through
+a .pth line, so the tests need no network; the package itself must come from the new environment.
 """
 
 import json
+import re
+import shlex
+import shutil
 import site
 import subprocess
 import sys
@@ -37,8 +40,9 @@ def test_wheel_contains_the_mjcf(wheel):
         assert f"microg_env/mjcf/{name}" in names
 
 
-def test_installed_wheel_builds_and_drops_from_another_folder(wheel, tmp_path):
-    env_dir = tmp_path / "venv"
+def _fresh_venv(env_dir: Path, install: list[str], cwd: Path) -> Path:
+    """A new virtual environment with ``pip install --no-deps --no-index <install>`` done first,
+    then the running environment's packages borrowed for the dependencies; returns its bin folder."""
     venv.create(env_dir, with_pip=True)
     bindir = env_dir / ("Scripts" if sys.platform == "win32" else "bin")
     python = bindir / "python"
@@ -50,17 +54,24 @@ def test_installed_wheel_builds_and_drops_from_another_folder(wheel, tmp_path):
     ).stdout.strip()
     # Install first: with the borrowed folders visible, pip would find microg-env "already there".
     subprocess.run(
-        [str(python), "-m", "pip", "install", "--no-deps", "--no-index", "-q", str(wheel)],
+        [str(python), "-m", "pip", "install", "--no-deps", "--no-index", "-q", *install],
         check=True,
         capture_output=True,
+        cwd=cwd,
     )
     borrowed = {sysconfig.get_paths()["purelib"], *site.getsitepackages()}
     (Path(purelib) / "borrowed_dependencies.pth").write_text("\n".join(sorted(borrowed)) + "\n")
+    return bindir
+
+
+def test_installed_wheel_builds_and_drops_from_another_folder(wheel, tmp_path):
+    env_dir = tmp_path / "venv"
+    bindir = _fresh_venv(env_dir, [str(wheel)], tmp_path)
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     probe = subprocess.run(
         [
-            str(python),
+            str(bindir / "python"),
             "-c",
             "import microg_env; r = microg_env.build_rig(); print(microg_env.__file__, r.pad_contacts)",
         ],
@@ -76,3 +87,55 @@ def test_installed_wheel_builds_and_drops_from_another_folder(wheel, tmp_path):
         [str(bindir / "microg"), "drop", "--json"], check=True, capture_output=True, text=True, cwd=elsewhere
     )
     assert abs(json.loads(drop.stdout)["contact_time_s"]["rel_error"]) < 0.01
+
+
+def _quick_start_main_command() -> str:
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    section = text.split("## Quick start", 1)[1].split("\n## ", 1)[0]
+    return re.findall(r"```bash\n(.+?)\n```", section)[0]
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_a_fresh_clone_runs_the_quick_start(tmp_path):
+    """The README's first command, in a fresh clone (no results/ folder: git ignores it); the
+    dependencies are borrowed instead of downloaded, and the runs are shortened with --duration."""
+    clone = tmp_path / "clone"
+    subprocess.run(["git", "clone", "-q", str(REPO), str(clone)], check=True, capture_output=True)
+    assert not (clone / "results").exists()
+    steps = [shlex.split(step) for step in _quick_start_main_command().split("&&")]
+    assert len(steps) == 3
+    venv_step, install_step, reproduce = steps
+    assert venv_step == ["python3", "-m", "venv", ".venv"]
+    assert install_step[:2] == [".venv/bin/pip", "install"]
+    assert reproduce[:2] == [".venv/bin/microg", "reproduce"]
+    # pip builds the clone into a wheel and installs it: here the build runs in this environment
+    # (a new venv lacks setuptools >= 69), and the wheel goes into the clone's fresh .venv.
+    wheels = tmp_path / "wheels"
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            *install_step[2:],
+            "--no-deps",
+            "--no-build-isolation",
+            "-q",
+            "-w",
+            wheels,
+        ],
+        check=True,
+        capture_output=True,
+        cwd=clone,
+    )
+    bindir = _fresh_venv(clone / ".venv", [str(next(wheels.glob("microg_env-*.whl")))], clone)
+    result = subprocess.run(
+        [str(bindir / "microg"), *reproduce[1:], "--duration", "1", "--quiet"],
+        cwd=clone,
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr
+    assert (clone / "results" / "reproduction" / "report.md").is_file()

@@ -1,18 +1,26 @@
 """Metrics against closed forms, on synthetic trajectories and on the ideal reference."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from microg_env.analysis.metrics import compute_metrics, contacts, descent_acceleration, landing, stage_windows
 from microg_env.analysis.trajectory import Trajectory
+from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
 from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.reference import simulate_reference
 
 DT = 1e-3
 SCENARIO = Scenario("synthetic", (LoadStep(0.49),), descent_height_m=0.09)
+THREE_STAGES = Scenario("three", (LoadStep(0.05), LoadStep(0.5, 0.04), LoadStep(0.5, 0.02)), descent_height_m=0.09)
+PARAMS = RigParams()
+
+
+def _reference(scenario: Scenario, duration_s: float) -> Trajectory:
+    return simulate_reference(scenario, PARAMS, 1e-3, 1e-4, duration_s)
 
 
 def _trajectory(time, height, velocity, accel, force, stage=None) -> Trajectory:
@@ -54,7 +62,6 @@ def test_descent_acceleration_of_a_parabola():
     height = 0.09 + 0.001 * t - 0.5 * 0.00774 * t**2
     traj = _trajectory(t, height, np.gradient(height, t), np.zeros_like(t), np.zeros_like(t))
     assert descent_acceleration(traj, (100, t.size)) == pytest.approx(-0.00774, rel=1e-9)
-    assert math.isnan(descent_acceleration(traj, (100, 105)))
 
 
 def test_contact_metrics_of_the_section_2_contact():
@@ -68,15 +75,17 @@ def test_contact_metrics_of_the_section_2_contact():
     assert first.impact_speed_m_s == pytest.approx(0.04)
     assert first.max_deformation_m == pytest.approx(contact.max_deformation_m(0.04), rel=1e-4)
     assert first.collision_accel_m_s2 == pytest.approx(contact.max_deceleration_m_s2(0.04), rel=1e-4)
-    assert math.isnan(first.rebound_end_s)
+    assert math.isnan(first.rebound_apex_s)  # still rising when the trajectory ends
+    assert math.isnan(first.rebound_height_m)
+    assert "apex" in first.unavailable["rebound_height_m"]
 
 
 def test_stage_windows_skip_the_settling_and_stop_at_touchdown():
     t = np.arange(0.0, 4.0, DT)
     stage = (t >= 1.0).astype(int)
     traj = _trajectory(t, np.full_like(t, 0.05), np.zeros_like(t), np.zeros_like(t), np.zeros_like(t), stage)
-    traj = Trajectory(**{**traj.__dict__, "scenario": CONDITIONS[3]})
-    (a0, a1), (b0, b1) = stage_windows(traj, touchdown_index=3000)
+    (a0, a1), (b0, b1), never = stage_windows(replace(traj, scenario=THREE_STAGES), touchdown_index=3000)
+    assert never is None
     assert t[a0] == pytest.approx(0.2)
     assert a1 == 1000
     assert t[b0] == pytest.approx(1.2)
@@ -86,7 +95,7 @@ def test_stage_windows_skip_the_settling_and_stop_at_touchdown():
 @pytest.mark.parametrize("number", [1, 2, 3])
 def test_reference_falls_at_the_ideal_acceleration_of_each_stage(number):
     scenario = CONDITIONS[number]
-    reference = simulate_reference(scenario, duration_s=12.0)
+    reference = _reference(scenario, 20.0)
     metrics = compute_metrics(reference, reference)
     for measured, ideal in zip(metrics.descent_accel_m_s2, metrics.ideal_descent_accel_m_s2, strict=True):
         assert measured == pytest.approx(ideal, rel=1e-6)
@@ -100,8 +109,29 @@ def test_reference_falls_at_the_ideal_acceleration_of_each_stage(number):
 
 
 def test_metrics_json_has_the_required_keys_and_no_nan(run_json_keys):
-    reference = simulate_reference(CONDITIONS[1], duration_s=3.0)  # ends before touchdown
+    reference = _reference(CONDITIONS[1], 3.0)  # ends before touchdown
     result = compute_metrics(reference, reference).as_dict()
     assert run_json_keys <= set(result)
     assert result["max_deformation_m"] is None  # never landed: null, not NaN
+    assert result["unavailable"]["max_deformation_m"] == "the run ended before the first touchdown"
     assert isinstance(result["descent_accel_m_s2"], list)
+
+
+def test_a_run_ending_on_the_pad_reports_no_landing_and_a_clean_descent():
+    """A run cut off during the first contact: the descent is fitted up to the touchdown only, and
+    every contact metric is null with its reason (it was -11.6 % and a wrong landing before)."""
+    full = compute_metrics(_reference(CONDITIONS[1], 12.0), _reference(CONDITIONS[1], 12.0))
+    cut = compute_metrics(_reference(CONDITIONS[1], 5.5), _reference(CONDITIONS[1], 5.5))
+    assert cut.compensation_error_pct[0] == pytest.approx(full.compensation_error_pct[0], abs=1e-6)
+    for name in ("max_deformation_m", "collision_accel_m_s2", "contact_time_s", "restitution"):
+        assert math.isnan(getattr(cut, name))
+        assert cut.unavailable[name] == "the run ended before the first lift-off"
+    assert cut.impact_speed_m_s == pytest.approx(full.impact_speed_m_s)
+    assert cut.unavailable["flexible_unit_excursion_collision_m"] == "the run ended before the first lift-off"
+
+
+def test_a_free_fall_too_short_to_fit_is_null_with_its_reason():
+    scenario = Scenario("low", (LoadStep(0.49),), descent_height_m=0.0005)  # 0.5 mm: on the pad in 0.36 s
+    metrics = compute_metrics(_reference(scenario, 5.0), _reference(scenario, 5.0))
+    assert math.isnan(metrics.compensation_error_pct[0])
+    assert "under the 1 s a descent fit needs" in metrics.unavailable["descent_accel_m_s2[0]"]

@@ -1,7 +1,6 @@
 """microg reproduce: every number of the report comes from the runs and the metrics module."""
 
 import json
-from dataclasses import replace
 
 import pytest
 
@@ -9,11 +8,13 @@ from microg_env.analysis.evaluate import run_with_metrics
 from microg_env.cli import main
 from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
-from microg_env.paper import report
+from microg_env.paper import report, reproduction
+from microg_env.paper.calibration import with_pad
 from microg_env.paper.tables import CONDITIONS as PAPER
+from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS
 
-DURATION = 12.0  # long enough for every condition's first contact
+DURATION = 12.0  # long enough for every condition's first contact (and the Eq. 17 free falls)
 
 
 @pytest.fixture(scope="module")
@@ -28,18 +29,27 @@ def test_report_files(reproduced):
     for name in report.FIGURES:
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
         assert f"]({name})" in markdown
-    for heading in ("Table 3", "Table 4", "Table 5", "Table 6", "Section 2 closed form", "Differences"):
+    for heading in (
+        "Table 3",
+        "Table 4",
+        "Table 5",
+        "Table 6",
+        "Eq. (17)",
+        "Balancer",
+        "Section 2 closed form",
+        "What changed since microg 0.1.0",
+        "Differences",
+    ):
         assert heading in markdown
 
 
-@pytest.mark.parametrize("pad", report.PADS)
+@pytest.mark.parametrize("pad", reproduction.PADS)
 @pytest.mark.parametrize("number", [1, 2, 3])
 def test_report_numbers_are_the_metrics_of_the_runs(reproduced, pad, number):
     _, summary, markdown = reproduced
-    stiffness = summary["pads"][pad]["stiffness_n_per_m"]
-    damping = summary["pads"][pad]["damping_n_s_per_m"]
-    scenario = replace(CONDITIONS[number], pad_stiffness_n_per_m=stiffness, pad_damping_n_s_per_m=damping)
-    env = MicroGravityLandingEnv(scenario=scenario)
+    params = with_pad(RigParams(), pad)
+    assert summary["pads"][pad]["stiffness_n_per_m"] == params.pad.stiffness_n_per_m
+    env = MicroGravityLandingEnv(scenario=CONDITIONS[number], params=params)
     _, _, metrics = run_with_metrics(env, make_controller("pid", env.control_period_s), seed=0, duration_s=DURATION)
     assert summary["metrics"][pad][str(number)] == json.loads(json.dumps(metrics.as_dict()))
     assert f"{metrics.max_deformation_m * 1e3:.2f}" in markdown
@@ -63,8 +73,16 @@ def test_interrupted_write_leaves_the_previous_report(reproduced, tmp_path, monk
     out = tmp_path / "reproduction"
     out.mkdir()
     (out / "report.md").write_text("previous report")
-    fake = report.Reproduction(
-        runs={}, calibration=None, simulation_fit=None, pads={}, duration_s=1.0, seed=0, controller="pid"
+    fake = reproduction.Reproduction(
+        runs={},
+        calibration=None,
+        simulation_fit=None,
+        pads={},
+        eq17={},
+        drift={},
+        duration_s=1.0,
+        seed=0,
+        controller="pid",
     )
 
     def interrupted(_):
@@ -86,3 +104,23 @@ def test_bad_output_folder(tmp_path):
         report.check_output(tmp_path)  # holds "file": never replaced
     with pytest.raises(ValueError, match="does not exist"):
         report.check_output(tmp_path / "missing" / "reproduction")
+
+
+def test_eq17_and_drift_sections_come_from_their_runs(reproduced):
+    _, summary, markdown = reproduced
+    literal = summary["eq17_compensation_error_pct"]["literal/ki4000"]
+    restoring = summary["eq17_compensation_error_pct"]["restoring/ki4000"]
+    assert all(e > 1.0 for n in ("1", "2") for e in literal[n])  # the paper's fast descents
+    assert all(e < 0.0 for n in ("1", "2", "3") for e in restoring[n])  # a restoring QZS is slow
+    drift = summary["drift_fifty_gram_stage_error_pct"]
+    spread = {k: max(v) - min(v) for k, v in drift.items() if k != "seeds"}
+    assert spread["support_lander"] > spread["frame_support"]
+    assert f"spread {spread['support_lander']:.2f} pp" in markdown
+
+
+def test_the_fresh_clone_default_output_folder_is_created(tmp_path, monkeypatch):
+    """`microg reproduce` on a fresh clone: results/ is not in git, and the default --out is in it."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(reproduction, "compute", lambda **kwargs: pytest.fail("validated before running"))
+    assert main(["reproduce", "--quiet", "--duration", "0"]) == 2  # a bad option still creates nothing
+    assert list(tmp_path.iterdir()) == []

@@ -1,4 +1,9 @@
-"""One harness for every controller: run episodes on given seeds and summarise their metrics."""
+"""One harness for every controller: run episodes on given seeds and summarise their metrics.
+
+It accepts any environment of this package as users have it, raw or wrapped (``gym.make`` adds
+``TimeLimit``, ``OrderEnforcing`` and the checker): it steps through the wrappers and reads the
+rig's settings from ``env.unwrapped``.
+"""
 
 from __future__ import annotations
 
@@ -6,54 +11,79 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+import gymnasium as gym
 import numpy as np
 
+from microg_env import validate
 from microg_env.analysis.metrics import RunMetrics, compute_metrics
 from microg_env.analysis.trajectory import Trajectory, TrajectoryRecorder
-from microg_env.controllers import Controller
+from microg_env.controllers.base import Controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.sim.reference import simulate_reference
 
 
+def _rig_env(env: gym.Env) -> MicroGravityLandingEnv:
+    rig_env = env.unwrapped
+    if not isinstance(rig_env, MicroGravityLandingEnv):
+        raise ValueError(f"env must be a microg environment (raw or wrapped), got {type(rig_env).__name__}")
+    return rig_env
+
+
 def run_episode(
-    env: MicroGravityLandingEnv,
+    env: gym.Env,
     controller: Controller,
     seed: int | None = None,
     duration_s: float | None = None,
     on_progress: Callable[[int], None] | None = None,
 ) -> Trajectory:
-    """Reset ``env`` with ``seed`` and let ``controller`` drive it for ``duration_s`` (default: the scenario's).
+    """Reset ``env`` with ``seed`` and let ``controller`` drive it for ``duration_s`` (default and
+    at most: the scenario's). Stops early when the episode terminates or is truncated.
 
-    Stops early if the episode terminates. ``on_progress(steps)`` reports the steps run, every
-    1000 and, at the end, the rest of the planned steps (so a progress bar ends full).
+    ``on_progress(steps)`` reports the steps run, every 1000 and, at the end, the rest of the
+    planned steps (so a progress bar ends full).
     """
+    rig_env = _rig_env(env)
+    scenario_duration = rig_env.scenario.duration_s
+    if duration_s is not None:
+        validate.positive("duration_s", duration_s, "s", scenario_duration, "the scenario's duration")
+    steps = round((scenario_duration if duration_s is None else duration_s) / rig_env.control_period_s)
     obs, info = env.reset(seed=seed)
     controller.reset()
-    duration_s = env.active_scenario.duration_s if duration_s is None else duration_s
-    steps = round(duration_s / env.control_period_s)
-    recorder = TrajectoryRecorder(steps + 1)
+    recorder = TrajectoryRecorder()
     recorder.append(info)
     reason, reported = None, 0
     for k in range(steps):
-        obs, reward, terminated, _, info = env.step(controller(obs, info))
+        obs, reward, terminated, truncated, info = env.step(controller(obs, info))
         recorder.append(info, reward)
-        if terminated:
-            reason = info["termination_reason"]
-            break
         if on_progress is not None and (k + 1) % 1000 == 0:
             on_progress(1000)
             reported += 1000
+        if terminated or truncated:
+            reason = info["termination_reason"]
+            break
     if on_progress is not None:
         on_progress(steps - reported)
-    return recorder.finish(env.active_scenario, env.params.gravity_m_s2, env.params.lander.mass_kg, reason)
+    return recorder.finish(rig_env.active_scenario, rig_env.params.gravity_m_s2, rig_env.params.lander.mass_kg, reason)
+
+
+def reference_for(env: gym.Env, trajectory: Trajectory) -> Trajectory:
+    """The ideal-microgravity landing of the episode ``env`` just ran, as long as ``trajectory``."""
+    rig_env = _rig_env(env)
+    return simulate_reference(
+        rig_env.active_scenario,
+        rig_env.params,
+        rig_env.control_period_s,
+        rig_env.physics_step_s,
+        float(trajectory.time_s[-1]),
+    )
 
 
 def run_with_metrics(
-    env: MicroGravityLandingEnv, controller: Controller, seed: int | None = None, duration_s: float | None = None
+    env: gym.Env, controller: Controller, seed: int | None = None, duration_s: float | None = None
 ) -> tuple[Trajectory, Trajectory, RunMetrics]:
     """One episode, its ideal-microgravity reference (same lander, pad and loads) and its metrics."""
     trajectory = run_episode(env, controller, seed, duration_s)
-    reference = simulate_reference(env.active_scenario, env.base_params, env.control_period_s, trajectory.time_s[-1])
+    reference = reference_for(env, trajectory)
     return trajectory, reference, compute_metrics(trajectory, reference)
 
 
@@ -76,11 +106,13 @@ def summarise(runs: Iterable[RunMetrics], quantity: Callable[[RunMetrics], float
 
 
 def evaluate(
-    make_env: Callable[[], MicroGravityLandingEnv], controller: Controller, seeds: Iterable[int]
+    make_env: Callable[[], gym.Env], controller: Controller, seeds: Iterable[int]
 ) -> tuple[list[RunMetrics], float]:
-    """Metrics of ``controller`` on each seed, and the failure rate (episodes ended at a stroke limit)."""
+    """Metrics of ``controller`` on each seed, and the failure rate (episodes ended at a limit)."""
     env = make_env()
-    runs = [run_with_metrics(env, controller, seed)[2] for seed in seeds]
-    env.close()
+    try:
+        runs = [run_with_metrics(env, controller, seed)[2] for seed in seeds]
+    finally:
+        env.close()
     failures = sum(run.termination_reason is not None for run in runs)
     return runs, failures / max(len(runs), 1)

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 from microg_env.analysis.trajectory import Trajectory
+from microg_env.files import atomic_path
 
 
 def figure_class():
@@ -18,16 +17,10 @@ def figure_class():
 
 
 def save_figure(figure, path: Path) -> None:
-    """Save ``figure`` to ``path`` through a temporary file and a rename."""
+    """Save ``figure`` to ``path`` atomically, in the format its suffix names."""
     path = Path(path)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(handle)
-    try:
-        figure.savefig(temporary, dpi=110, bbox_inches="tight")
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as temporary:
+        figure.savefig(temporary, format=path.suffix[1:].lower(), dpi=110, bbox_inches="tight")
 
 
 def plot_run(trajectory: Trajectory, reference: Trajectory, title: str, path: Path) -> None:

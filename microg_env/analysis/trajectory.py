@@ -65,22 +65,25 @@ class Trajectory:
 
 
 class TrajectoryRecorder:
-    """Preallocated channel buffers filled from the environment's ``info`` dictionaries."""
+    """Channel buffers filled from the environment's ``info`` dictionaries, grown as needed."""
 
-    def __init__(self, capacity: int) -> None:
-        self._buffers = {name: np.zeros(capacity) for name in CHANNELS}
+    def __init__(self, capacity: int = 4096) -> None:
+        self._buffer = np.zeros((len(CHANNELS), capacity))
         self._count = 0
 
     def append(self, info: dict, reward: float = 0.0) -> None:
         k = self._count
-        for name, buffer in self._buffers.items():
-            buffer[k] = reward if name == "reward" else info[name]
+        if k == self._buffer.shape[1]:
+            self._buffer = np.concatenate([self._buffer, np.zeros_like(self._buffer)], axis=1)
+        column = self._buffer[:, k]
+        for i, name in enumerate(CHANNELS[:-1]):
+            column[i] = info[name]
+        column[-1] = reward
         self._count = k + 1
 
     def finish(
         self, scenario: Scenario, gravity_m_s2: float, lander_mass_kg: float, termination_reason: str | None = None
     ) -> Trajectory:
-        k = self._count
-        arrays = {name: buffer[:k].copy() for name, buffer in self._buffers.items()}
+        arrays = {name: self._buffer[i, : self._count].copy() for i, name in enumerate(CHANNELS)}
         arrays["stage"] = arrays["stage"].astype(int)
         return Trajectory(scenario, gravity_m_s2, lander_mass_kg, termination_reason=termination_reason, **arrays)

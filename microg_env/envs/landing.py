@@ -3,19 +3,25 @@
 from __future__ import annotations
 
 import math
+import os
+import sys
 from dataclasses import replace
+from pathlib import Path
 from typing import Any, ClassVar
 
 import gymnasium as gym
 import mujoco
 import numpy as np
-from gymnasium import spaces, utils
+from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 
-from microg_env import scenarios
+from microg_env import scenarios, validate
 from microg_env.imperfections import DomainRandomization, Imperfections, apply_imperfections
-from microg_env.params import RigParams
-from microg_env.scenarios import Scenario
-from microg_env.sim.model import Rig, build_rig, flexible_unit
+from microg_env.params import CONTROL_PERIOD_RANGE_S, MAX_CONTROL_STEPS, PHYSICS_STEP_S, RigParams
+from microg_env.scenarios import LoadStep, Scenario
+from microg_env.sim.limits import check_pad
+from microg_env.sim.model import Rig, build_rig, check_physics_step, flexible_unit, validate_loads
+from microg_env.sim.sensors import SensorModel, backward_difference
 
 #: Observation entries and the scale each is divided by (SI units / scale = order one).
 OBSERVATION_SCALES: dict[str, float] = {
@@ -31,26 +37,32 @@ OBSERVATION_SCALES: dict[str, float] = {
 }
 OBSERVATION_INDEX = {name: i for i, name in enumerate(OBSERVATION_SCALES)}
 _SCALES = np.array(list(OBSERVATION_SCALES.values()))
-#: Margin before a stroke end at which the episode terminates, m.
-_STOP_MARGIN_M = 1e-4
+#: Margin before a stroke end (or the pad's full depth) at which the episode terminates, m.
+STOP_MARGIN_M = 1e-4
+#: Clearance the start height keeps above the pad and above every load's switch height, m.
+START_CLEARANCE_M = 1e-3
+#: Largest render size, pixels (MuJoCo's offscreen buffer is set by the model's offwidth/offheight).
+MAX_RENDER_PIXELS = 8192
 
 
-class MicroGravityLandingEnv(gym.Env, utils.EzPickle):
+class MicroGravityLandingEnv(gym.Env):
     """
     ## Description
     The QZS microgravity simulation rig of Jia et al. (Actuators 2024, 13(9), 361), simulated in
-    MuJoCo. A 620 kg lander hangs on a quasi-zero-stiffness (QZS) mechanism and a nitrogen balancer
-    from a floating support, which a servo screw stage (the "stroke amplifier") moves. While the
-    relative displacement x = z_lander - z_support stays at 0 the support force is constant and a
-    small test weight m makes the lander fall at m g / (M + m), 1e-3 to 1e-4 g, onto a soft rubber
-    pad. The agent commands the stroke amplifier; every micrometre of x it lets through is a
-    36 mN force error (5.9e-6 g). Episodes follow the paper's test conditions (Table 2).
+    MuJoCo. A 620 kg lander hangs on a quasi-zero-stiffness (QZS) mechanism from a floating
+    support, which a servo screw stage (the "stroke amplifier") moves; a nitrogen balancer carries
+    the support's load. While the relative displacement x = z_lander - z_support stays at 0 the
+    support force is constant and a small test weight m makes the lander fall at m g / (M + m),
+    1e-3 to 1e-4 g, onto a soft rubber pad. The agent commands the stroke amplifier; every
+    micrometre of x it lets through is a 36 mN force error (5.7e-6 g). Episodes follow the paper's
+    test conditions (Table 2).
 
     ## Action Space
     ``Box(-1, 1, (1,), float32)``: the servo drive's speed reference for the support, scaled to
     +-1250 mm/s (the mechanism's maximum, Section 4.1), up positive. Out-of-range values are
     clipped to [-1, 1]; NaN, infinite or wrongly shaped actions raise ``ValueError``. The drive
-    integrates the reference into its position reference and closes its own PI speed loop.
+    interpolates its position reference at that speed through the control period and closes its
+    own PI speed loop at every physics step.
 
     ## Observation Space
     ``Box(-inf, inf, (9,), float32)``, what the rig's sensors give, each divided by a scale
@@ -71,21 +83,23 @@ class MicroGravityLandingEnv(gym.Env, utils.EzPickle):
     ## Rewards
     ``reward = reward_compensation + reward_action_rate`` with
     ``reward_compensation = exp(-(e / compensation_scale)^2)``, e = dF / (m_ref g) the
-    gravity-compensation error: dF is the deviation of the support force (QZS and balancer) from
-    its balanced value, caused by x and by balancer drift, and m_ref the test weight placed (the
-    first weight's before any is placed); and
+    gravity-compensation error: dF is the deviation of the support force on the lander from its
+    balanced value, caused by x (and by balancer drift when the balancer acts on the lander), and
+    m_ref the test weight placed (the first weight's before any is placed); and
     ``reward_action_rate = -action_rate_weight * (a_t - a_{t-1})^2``. A step is worth at most 1.
 
     ## Starting State
-    Balanced at rest with the foot at the scenario's descent height (plus a uniform perturbation
-    of +-``reset_noise_scale`` m), x = 0, servo holding. The scenario's first test weight is placed
-    at t = 0; later ones when the foot comes down to their height (condition 3: 1 kg more at 25 mm).
+    Balanced at rest with the foot at the scenario's descent height, plus a uniform perturbation
+    of +-``reset_noise_scale`` m that must keep the start at least 1 mm above the pad and above
+    every load's switch height; x = 0, servo holding, the balancer trimmed at that height. The
+    scenario's first test weight is placed at t = 0; later ones when the foot comes down to their
+    height (condition 3: 1 kg more at 25 mm).
 
     ## Episode End
-    Terminated when x reaches the 50 mm guide stroke or the support the screw's 480 mm stroke
-    (``info["termination_reason"]`` names which). Truncated at 30 s of simulated time by
-    ``max_episode_steps`` (30000 at the default 1 kHz; pass ``max_episode_steps`` to ``gym.make``
-    with another ``control_period_s``).
+    Terminated when x reaches the 50 mm guide stroke, the support the screw's 480 mm stroke, or
+    the foot the pad's full depth (it bottoms out on the floor); ``info["termination_reason"]``
+    names which. Truncated when the scenario's duration (30 s for the paper's conditions) is
+    reached, at any control period.
 
     ## Arguments
     ``gym.make("microg_env:MicroGravityLanding-v0", **kwargs)`` with
@@ -93,11 +107,12 @@ class MicroGravityLandingEnv(gym.Env, utils.EzPickle):
     | argument | default | meaning |
     |---|---|---|
     | ``condition`` | 1 | the paper's condition 1, 2 or 3 (ignored when ``scenario`` is given) |
-    | ``scenario`` | None | a custom ``Scenario`` (load schedule, descent height, lander, pad) |
-    | ``control_period_s`` | 1e-3 | control period: the paper's 1000, 500, 200 or 100 us, or another |
+    | ``scenario`` | None | a custom ``Scenario`` (load schedule, descent height, duration, overrides) |
+    | ``control_period_s`` | 1e-3 | control period: the paper's 1000, 500, 200 or 100 us, up to 10 ms |
+    | ``physics_step_s`` | 1e-4 | physics step; it must divide the control period |
     | ``imperfections`` | ``Imperfections()`` | which non-ideal effects are on (all by default) |
     | ``domain_randomization`` | None | a ``DomainRandomization`` to perturb rig and load at each reset |
-    | ``params`` | ``RigParams()`` | the rig |
+    | ``params`` | ``RigParams()`` | the rig (the scenario's explicit overrides are applied on top) |
     | ``xml_file`` | None | an MJCF template other than the packaged ``scene.xml`` |
     | ``compensation_scale`` | 0.05 | relative compensation error that costs a factor e in reward |
     | ``action_rate_weight`` | 0.1 | weight of the action-rate penalty |
@@ -110,6 +125,9 @@ class MicroGravityLandingEnv(gym.Env, utils.EzPickle):
     ``placed_load_kg``, ``stage``, ``command_m_s``, ``servo_torque_n_m``,
     ``compensation_error``, ``reward_compensation``, ``reward_action_rate`` and
     ``termination_reason``.
+
+    Copies (``pickle``, ``cloudpickle``, ``copy.deepcopy``) carry the episode: a copy made mid-episode
+    continues exactly as the original would.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 1000}
@@ -119,6 +137,7 @@ class MicroGravityLandingEnv(gym.Env, utils.EzPickle):
         condition: int = 1,
         scenario: Scenario | None = None,
         control_period_s: float = 1e-3,
+        physics_step_s: float = PHYSICS_STEP_S,
         imperfections: Imperfections | None = None,
         domain_randomization: DomainRandomization | None = None,
         params: RigParams | None = None,
@@ -131,150 +150,185 @@ class MicroGravityLandingEnv(gym.Env, utils.EzPickle):
         height: int = 480,
         camera_name: str = "side",
     ) -> None:
-        utils.EzPickle.__init__(
-            self,
-            condition,
-            scenario,
-            control_period_s,
-            imperfections,
-            domain_randomization,
-            params,
-            xml_file,
-            compensation_scale,
-            action_rate_weight,
-            reset_noise_scale,
-            render_mode,
-            width,
-            height,
-            camera_name,
-        )
         self.scenario = scenarios.condition(condition) if scenario is None else scenario
-        if not isinstance(self.scenario, Scenario):
-            raise ValueError(f"scenario must be a Scenario, got {type(self.scenario).__name__}")
+        validate.instance("scenario", self.scenario, Scenario)
         self.imperfections = Imperfections() if imperfections is None else imperfections
-        if not isinstance(self.imperfections, Imperfections):
-            raise ValueError(f"imperfections must be an Imperfections, got {type(self.imperfections).__name__}")
-        if domain_randomization is not None and not isinstance(domain_randomization, DomainRandomization):
-            raise ValueError(
-                f"domain_randomization must be a DomainRandomization or None, got {domain_randomization!r}"
-            )
+        validate.instance("imperfections", self.imperfections, Imperfections)
+        if domain_randomization is not None:
+            validate.instance("domain_randomization", domain_randomization, DomainRandomization)
         self.domain_randomization = domain_randomization
         self.base_params = RigParams() if params is None else params
-        self.control_period_s = _positive("control_period_s", control_period_s, upper=0.01)
-        self.compensation_scale = _positive("compensation_scale", compensation_scale)
-        self.action_rate_weight = _non_negative("action_rate_weight", action_rate_weight)
-        self.reset_noise_scale = _non_negative("reset_noise_scale", reset_noise_scale)
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        validate.instance("params", self.base_params, RigParams)
+        self.physics_step_s = check_physics_step(physics_step_s)
+        self.control_period_s = _check_control_period(control_period_s, self.physics_step_s)
+        self.frame_skip = round(self.control_period_s / self.physics_step_s)
+        self._max_steps = round(self.scenario.duration_s / self.control_period_s)
+        if self._max_steps < 1:
+            raise ValueError(
+                f"Scenario.duration_s {self.scenario.duration_s:g} s is shorter than one control period "
+                f"({self.control_period_s:g} s)"
+            )
+        if self._max_steps > MAX_CONTROL_STEPS:
+            raise ValueError(
+                f"Scenario.duration_s {self.scenario.duration_s:g} s at control_period_s {self.control_period_s:g} s "
+                f"is {self._max_steps} control steps, more than the {MAX_CONTROL_STEPS} one run may take"
+            )
+        self.compensation_scale = validate.positive("compensation_scale", compensation_scale)
+        self.action_rate_weight = validate.non_negative("action_rate_weight", action_rate_weight)
+        self.reset_noise_scale = _check_reset_noise(reset_noise_scale, self.scenario)
+        if render_mode is not None:
+            validate.choice("render_mode", render_mode, tuple(self.metadata["render_modes"]))
+        if render_mode == "human":
+            _check_display()
         self.render_mode = render_mode
-        self.xml_file = xml_file
-        self._render_size = (width, height)
+        self.xml_file = None if xml_file is None else str(xml_file)
+        if self.xml_file is not None and not Path(self.xml_file).is_file():
+            raise ValueError(f"xml_file {self.xml_file!r} is not a file")
+        self._render_size = (
+            validate.integer("width", width, 1, MAX_RENDER_PIXELS),
+            validate.integer("height", height, 1, MAX_RENDER_PIXELS),
+        )
         self._camera_name = camera_name
         self._renderer = None
-
-        self.frame_skip = math.ceil(self.control_period_s / self.base_params.timestep_s - 1e-9)
-        self._timestep = self.control_period_s / self.frame_skip  # the physics step divides the period
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.control_period_s)}
         self._human_every = max(1, round(1.0 / (60.0 * self.control_period_s)))
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(len(_SCALES),), dtype=np.float32)
-        self._build(self.base_params, self.scenario)
 
-    # -- model -------------------------------------------------------------------------------
-
-    def _build(self, params: RigParams, scenario: Scenario) -> None:
-        """Compile the rig for ``scenario`` and cache what the step needs."""
-        top = params.screw.range_m[1] - 0.01
-        if scenario.descent_height_m + self.reset_noise_scale > top:
-            raise ValueError(
-                f"Scenario.descent_height_m {scenario.descent_height_m!r} m is above the screw's reach "
-                f"({top:.2f} m with the reset noise)"
-            )
-        params = apply_imperfections(scenario.rig_params(params), self.imperfections)
-        params = replace(params, timestep_s=self._timestep)
-        self.params = params
-        self.active_scenario = scenario
-        self.rig: Rig = build_rig(params, scenario.loads_kg, xml_file=self.xml_file)
+        params = apply_imperfections(self.scenario.rig_params(self.base_params), self.imperfections)
+        self._check_scenario_fits(params)
+        self.rig: Rig = build_rig(
+            params,
+            self.scenario.loads_kg,
+            xml_file=self.xml_file,
+            physics_step_s=self.physics_step_s,
+            ideal_drive=not self.imperfections.servo_lag,
+        )
         self.model = self.rig.model
         self.data = mujoco.MjData(self.model)
-        model, rig, sensors = self.model, self.rig, params.sensors
+        if camera_name not in {self.model.camera(i).name for i in range(self.model.ncam)}:
+            cameras = ", ".join(self.model.camera(i).name for i in range(self.model.ncam))
+            raise ValueError(f"camera_name must be one of the model's cameras ({cameras}), got {camera_name!r}")
+        if render_mode == "rgb_array":
+            offscreen = (self.model.vis.global_.offwidth, self.model.vis.global_.offheight)
+            for name, size, most in zip(("width", "height"), self._render_size, offscreen, strict=True):
+                validate.integer(name, size, 1, most)
+        model = self.model
         self._accel_adr = int(model.sensor_adr[model.sensor("lander_accel").id]) + 2
         self._force_adr = int(model.sensor_adr[model.sensor("pad_force").id])
-        self._encoder_step = params.screw.lead_m / params.screw.belt_ratio / sensors.encoder_counts_per_rev
-        self._accel_noise = sensors.accelerometer_noise_density_m_s2_per_sqrt_hz * math.sqrt(
-            0.5 / self.control_period_s
-        )
-        unit = flexible_unit(params)
-        self._balancer_force = unit.balancer_force_n
-        self._x_stiffness = unit.stiffness_n_per_m
-        self._x_limit = params.qzs.stroke_m / 2.0 - _STOP_MARGIN_M
+        self._omega_per_action = params.screw.max_speed_m_per_s * self.rig.gear
+        self._x_limit = params.qzs.stroke_m / 2.0 - STOP_MARGIN_M
         low, high = params.screw.range_m
-        self._screw_limits = (low + _STOP_MARGIN_M, high - _STOP_MARGIN_M)
-        self._n_loads = len(scenario.loads)
-        self._max_speed = params.screw.max_speed_m_per_s
-        self._omega_per_action = self._max_speed * rig.gear
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        self._screw_limits = (low + STOP_MARGIN_M, high - STOP_MARGIN_M)
+        self._floor = -(params.pad.thickness_m - STOP_MARGIN_M)
+        self._drift_dof = self.rig.screw_dof if params.balancer.placement == "frame_support" else self.rig.qzs_dof
+        self._sensors = SensorModel(params, self.control_period_s, self.imperfections.sensor_noise)
+        self._truth = np.zeros((4, 1))  # true sensor values, one rig (sim.sensors.SENSORS)
+        self._raw_observation = np.zeros(len(_SCALES))
+        self.params = params  # the episode's rig (a draw of the domain randomisation, if any)
+        self.active_scenario = self.scenario  # the episode's schedule (with the drawn test weights)
+        self._episode: dict[str, Any] | None = None  # None until the first reset
+
+    def _check_scenario_fits(self, params: RigParams) -> None:
+        """Reject, before any episode, a scenario the rig cannot run (named in the error)."""
+        scenario = self.scenario
+        top = params.screw.range_m[1] - STOP_MARGIN_M - 0.01
+        if scenario.descent_height_m + self.reset_noise_scale > top:
+            raise ValueError(
+                f"Scenario.descent_height_m {scenario.descent_height_m!r} m plus reset_noise_scale "
+                f"{self.reset_noise_scale!r} m is above the screw's reach ({top:.3f} m)"
+            )
+        g, mass, load = params.gravity_m_s2, params.lander.mass_kg, sum(scenario.loads_kg)
+        validate_loads(scenario.loads_kg, mass)
+        speed = scenario.impact_speed_m_s(mass, g)
+        check_pad(params.pad, mass + load, speed, load * g, self.physics_step_s, scenario.name)
+        if self.domain_randomization is not None:
+            self.domain_randomization.check(params, scenario, self.physics_step_s)
 
     # -- gymnasium API -------------------------------------------------------------------------
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        super().reset(seed=seed)
-        rng = self.np_random
-        if self.domain_randomization is not None:
-            params, scenario = self.domain_randomization.sample(self.base_params, self.scenario, rng)
-            self._build(params, scenario)
-        height = self.active_scenario.descent_height_m
-        if self.reset_noise_scale > 0:
-            height += rng.uniform(-self.reset_noise_scale, self.reset_noise_scale)
+        if seed is not None:
+            validate.integer("seed", seed, 0)
+        generator = (self._np_random, self._np_random_seed)
+        try:
+            super().reset(seed=seed)
+            params, scenario, height, rate = self._draw_episode(self.np_random)
+            self.rig.configure(params, scenario.loads_kg)  # checks before it writes
+        except BaseException:  # a failed reset leaves the environment exactly as it was
+            self._np_random, self._np_random_seed = generator
+            raise
+        self.params, self.active_scenario = params, scenario
         self.rig.reset(self.data, height)
-        self._next_load = 0
+        unit = flexible_unit(params)
+        self._episode = {
+            "next_load": 0,
+            "previous_action": 0.0,
+            "position_ref": float(self.data.ctrl[0]) if not self.rig.ideal_drive else 0.0,
+            "steps": 0,
+            "last_readings": None,
+            "drift_n_per_s": unit.balancer_force_n * rate / params.drift.gas_temperature_k,
+            "x_stiffness": unit.x_stiffness_n_per_m,
+            "reference_weight_n": scenario.loads[0].mass_kg * params.gravity_m_s2,
+        }
         self._place_due_loads(height)
         mujoco.mj_forward(self.model, self.data)
-        drift = self.params.drift
-        rate = rng.uniform(-1.0, 1.0) * drift.max_temperature_rate_k_per_s if self.imperfections.balancer_drift else 0.0
-        self._drift_n_per_s = self._balancer_force * rate / drift.gas_temperature_k
-        self._previous_action = 0.0
-        self._position_ref = float(self.data.ctrl[0])
-        self._steps = 0
-        self._last_ruler = self._last_encoder = None
         obs = self._sense()
         if self.render_mode == "human":
             self.render()
         return obs, self._info(0.0, self._support_force_deviation(), 0.0, 0.0, 0.0, None)
 
+    def _draw_episode(self, rng: np.random.Generator) -> tuple[RigParams, Scenario, float, float]:
+        """The episode's rig, schedule, start height and balancer drift rate (K/s), drawn and checked."""
+        params, scenario = self.rig.params, self.scenario
+        if self.domain_randomization is not None:
+            drawn, loads = self.domain_randomization.sample(
+                self.scenario.rig_params(self.base_params), scenario.loads_kg, rng
+            )
+            params = apply_imperfections(drawn, self.imperfections)
+            steps = tuple(LoadStep(mass, step.height_m) for mass, step in zip(loads, scenario.loads, strict=True))
+            scenario = replace(scenario, loads=steps)
+        height = scenario.descent_height_m
+        if self.reset_noise_scale > 0:
+            height += rng.uniform(-self.reset_noise_scale, self.reset_noise_scale)
+        drift = params.drift
+        rate = rng.uniform(-1.0, 1.0) * drift.max_temperature_rate_k_per_s if self.imperfections.balancer_drift else 0.0
+        return params, scenario, height, rate
+
     def step(self, action):
+        episode = self._episode
+        if episode is None:
+            raise ResetNeeded("call reset() before step()")
         value = _check_action(action)
         data, rig = self.data, self.rig
-        command = self._previous_action if self.imperfections.control_delay else value
+        command = episode["previous_action"] if self.imperfections.control_delay else value
         omega = command * self._omega_per_action
-        self._position_ref += omega * self.control_period_s
-        data.ctrl[0] = self._position_ref - 0.5 * omega * self.control_period_s  # the period's mean
-        data.ctrl[1] = omega
-        data.qfrc_applied[rig.qzs_dof] = self._drift_n_per_s * data.time
-        mujoco.mj_step(self.model, data, nstep=self.frame_skip)
-        self._steps += 1
-        if self._next_load < self._n_loads:
+        data.qfrc_applied[self._drift_dof] = episode["drift_n_per_s"] * data.time
+        episode["position_ref"] = rig.drive(data, episode["position_ref"], omega, self.frame_skip)
+        episode["steps"] += 1
+        if episode["next_load"] < len(self.active_scenario.loads):
             self._place_due_loads(rig.foot_height(data))
 
-        reward_action_rate = -self.action_rate_weight * (value - self._previous_action) ** 2
-        self._previous_action = value
+        reward_action_rate = -self.action_rate_weight * (value - episode["previous_action"]) ** 2
+        episode["previous_action"] = value
         obs = self._sense()
         deviation = self._support_force_deviation()
-        error = deviation / self._reference_weight_n
+        error = deviation / episode["reference_weight_n"]
         reward_compensation = math.exp(-((error / self.compensation_scale) ** 2))
-        x = data.qpos[rig.qzs_qpos]
-        reason = None
-        if abs(x) >= self._x_limit:
-            reason = "guide_stroke_limit"
-        elif not self._screw_limits[0] < data.qpos[rig.screw_qpos] < self._screw_limits[1]:
-            reason = "screw_stroke_limit"
-        info = self._info(command * self._max_speed, deviation, error, reward_compensation, reward_action_rate, reason)
-        if self.render_mode == "human" and self._steps % self._human_every == 0:
+        reason = self._termination_reason()
+        info = self._info(
+            command * self.rig.params.screw.max_speed_m_per_s,
+            deviation,
+            error,
+            reward_compensation,
+            reward_action_rate,
+            reason,
+        )
+        truncated = reason is None and episode["steps"] >= self._max_steps
+        if self.render_mode == "human" and episode["steps"] % self._human_every == 0:
             self.render()
-        return obs, reward_compensation + reward_action_rate, reason is not None, False, info
+        return obs, reward_compensation + reward_action_rate, reason is not None, truncated, info
 
     def render(self):
         if self.render_mode is None:
@@ -294,54 +348,63 @@ class MicroGravityLandingEnv(gym.Env, utils.EzPickle):
             self._renderer.close()
             self._renderer = None
 
+    def __getstate__(self) -> dict[str, Any]:
+        """The whole environment, episode included (model, data, generator), but no renderer."""
+        state = self.__dict__.copy()
+        state["_renderer"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.rig.model = self.model  # one model for the rig and the environment, as built
+
     # -- internals ---------------------------------------------------------------------------
 
     def _place_due_loads(self, height: float) -> None:
-        due = self.active_scenario.loads_due(height, self._next_load)
-        if due != self._next_load:
-            self._next_load = due
-            self.rig.place_loads(np.arange(self._n_loads) < due)
+        episode, scenario = self._episode, self.active_scenario
+        due = scenario.loads_due(height, episode["next_load"])
+        if due != episode["next_load"]:
+            episode["next_load"] = due
+            self.rig.place_loads(np.arange(len(scenario.loads)) < due)
             # The compensation error is measured against the weight placed (the first before any is).
-            reference_load = max(self.rig.placed_load_kg, self.active_scenario.loads[0].mass_kg)
-            self._reference_weight_n = reference_load * self.params.gravity_m_s2
+            reference_load = max(self.rig.placed_load_kg, scenario.loads[0].mass_kg)
+            episode["reference_weight_n"] = reference_load * self.params.gravity_m_s2
 
     def _support_force_deviation(self) -> float:
-        """Support force on the lander minus its balanced value: -k x plus balancer drift, N."""
-        data = self.data
-        return float(-self._x_stiffness * data.qpos[self.rig.qzs_qpos] + data.qfrc_applied[self.rig.qzs_dof])
+        """Support force on the lander minus its balanced value: -k x, plus balancer drift when
+        the balancer acts on the lander, N."""
+        data, rig = self.data, self.rig
+        deviation = -self._episode["x_stiffness"] * data.qpos[rig.qzs_qpos]
+        if self._drift_dof == rig.qzs_dof:
+            deviation += data.qfrc_applied[rig.qzs_dof]
+        return float(deviation)
+
+    def _termination_reason(self) -> str | None:
+        data, rig = self.data, self.rig
+        if abs(data.qpos[rig.qzs_qpos]) >= self._x_limit:
+            return "guide_stroke_limit"
+        if not self._screw_limits[0] < data.qpos[rig.screw_qpos] < self._screw_limits[1]:
+            return "screw_stroke_limit"
+        if rig.foot_height(data) <= self._floor:
+            return "pad_bottomed_out"
+        return None
 
     def _sense(self) -> np.ndarray:
         """Read the sensors (noise, quantisation, rates by backward difference) as an observation."""
-        data, sensors, period = self.data, self.params.sensors, self.control_period_s
-        ruler = data.qpos[self.rig.qzs_qpos]
-        encoder = data.qpos[self.rig.screw_qpos]
-        accel = data.sensordata[self._accel_adr] - self.params.gravity_m_s2
-        force = data.sensordata[self._force_adr]
-        if self.imperfections.sensor_noise:
-            noise = self.np_random.standard_normal(3)
-            step = sensors.ruler_resolution_m
-            ruler = round((ruler + sensors.ruler_noise_m * noise[0]) / step) * step
-            encoder = round(encoder / self._encoder_step) * self._encoder_step
-            accel += self._accel_noise * noise[1]
-            force += sensors.force_noise_n * noise[2]
-        if self._last_ruler is None:
-            x_rate = support_velocity = 0.0
-        else:
-            x_rate = (ruler - self._last_ruler) / period
-            support_velocity = (encoder - self._last_encoder) / period
-        self._last_ruler, self._last_encoder = ruler, encoder
-        raw = (
-            ruler,
-            x_rate,
-            encoder,
-            support_velocity,
-            accel,
-            force,
-            encoder + ruler,
-            self.rig.placed_load_kg,
-            self._previous_action,
-        )
-        return (np.array(raw) / _SCALES).astype(np.float32)
+        data, rig, episode = self.data, self.rig, self._episode
+        truth = self._truth
+        truth[0, 0] = data.qpos[rig.qzs_qpos]
+        truth[1, 0] = data.qpos[rig.screw_qpos]
+        truth[2, 0] = data.sensordata[self._accel_adr] - self.params.gravity_m_s2
+        truth[3, 0] = data.sensordata[self._force_adr]
+        readings = self._sensors.read(self.np_random, truth)
+        rates = backward_difference(readings[:2], episode["last_readings"], self.control_period_s)
+        episode["last_readings"] = readings[:2].copy()
+        raw = self._raw_observation
+        raw[0], raw[1], raw[2], raw[3] = readings[0, 0], rates[0, 0], readings[1, 0], rates[1, 0]
+        raw[4], raw[5], raw[6] = readings[2, 0], readings[3, 0], readings[1, 0] + readings[0, 0]
+        raw[7], raw[8] = rig.placed_load_kg, episode["previous_action"]
+        return (raw / _SCALES).astype(np.float32)
 
     def _info(
         self,
@@ -364,7 +427,7 @@ class MicroGravityLandingEnv(gym.Env, utils.EzPickle):
             "support_force_deviation_n": deviation,
             "pad_force_n": float(data.sensordata[self._force_adr]),
             "placed_load_kg": rig.placed_load_kg,
-            "stage": self._next_load - 1,
+            "stage": self._episode["next_load"] - 1,
             "command_m_s": command,
             "servo_torque_n_m": float(data.actuator_force[0]),
             "compensation_error": float(error),
@@ -374,22 +437,54 @@ class MicroGravityLandingEnv(gym.Env, utils.EzPickle):
         }
 
 
-def _positive(name: str, value: float, upper: float = math.inf) -> float:
-    if not (isinstance(value, int | float) and math.isfinite(value) and 0 < value <= upper):
-        bound = "" if math.isinf(upper) else f" and at most {upper:g}"
-        raise ValueError(f"{name} must be positive{bound}, got {value!r}")
-    return float(value)
+def _check_control_period(control_period_s: float, physics_step_s: float) -> float:
+    low, high = CONTROL_PERIOD_RANGE_S
+    period = validate.positive("control_period_s", control_period_s, "s")
+    if not low - 1e-12 <= period <= high + 1e-12:
+        raise ValueError(
+            f"control_period_s must be in [{low:g}, {high:g}] s (the RTX timer's 100 us to 10 ms), "
+            f"got {control_period_s!r}"
+        )
+    steps = period / physics_step_s
+    if abs(steps - round(steps)) > 1e-6 * steps:
+        raise ValueError(
+            f"control_period_s {control_period_s!r} s must be a whole number of physics steps of {physics_step_s:g} s"
+        )
+    return period
 
 
-def _non_negative(name: str, value: float) -> float:
-    if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-    return float(value)
+def _check_reset_noise(reset_noise_scale: float, scenario: Scenario) -> float:
+    """The start-height perturbation must keep the start clear of the pad and of every switch height."""
+    noise = validate.non_negative("reset_noise_scale", reset_noise_scale, "m")
+    room = scenario.descent_height_m - max(scenario.lowest_switch_height_m, 0.0) - START_CLEARANCE_M
+    if noise > 0 and noise > room:
+        raise ValueError(
+            f"reset_noise_scale {reset_noise_scale!r} m would start the foot below "
+            f"{max(scenario.lowest_switch_height_m, 0.0) * 1e3:g} mm + 1 mm (the pad or a load's switch height); "
+            f"at most {max(room, 0.0):.4g} m for {scenario.name}"
+        )
+    return noise
+
+
+def _check_display() -> None:
+    """Human rendering opens a GLFW window; without a display GLFW aborts the whole process."""
+    headless = os.environ.get("MUJOCO_GL", "glfw").lower() in {"egl", "osmesa"}
+    no_display = sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    )
+    if headless or no_display:
+        raise RuntimeError(
+            "render_mode='human' needs a display (DISPLAY is not set or MUJOCO_GL is egl/osmesa); "
+            "use render_mode='rgb_array' with MUJOCO_GL=egl or osmesa"
+        )
 
 
 def _check_action(action) -> float:
     """The action as a float in [-1, 1]; NaN, infinite or wrongly shaped actions raise."""
-    array = np.asarray(action, dtype=np.float64)
+    try:
+        array = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"action must be an array of shape (1,), got {action!r}") from None
     if array.shape != (1,):
         raise ValueError(f"action must have shape (1,), got shape {array.shape}")
     value = float(array[0])

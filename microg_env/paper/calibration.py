@@ -14,44 +14,44 @@ MuJoCo's soft contact is linear in penetration.
 
 from __future__ import annotations
 
-import functools
 import math
+import sys
 from dataclasses import dataclass, replace
+from importlib import resources
 
 import mujoco
 import numpy as np
 
 from microg_env.paper.tables import CONDITIONS as PAPER
 from microg_env.paper.tables import experiment_relative_error_pct
-from microg_env.params import RigParams
+from microg_env.params import PadParams, RigParams
 from microg_env.scenarios import CONDITIONS, Scenario
 from microg_env.sim.contact import damping_ratio
 from microg_env.sim.model import build_pad_test, pad_contact_solref
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
 #: Damping ratio the search may not cross (Section 2 needs an under-damped pad).
 _MAX_DAMPING_RATIO = 0.95
-
-
-def impact_speed_m_s(scenario: Scenario, gravity_m_s2: float) -> float:
-    """Speed at touchdown after the ideal free fall through the scenario's load stages."""
-    heights = [scenario.descent_height_m] + [load.height_m for load in scenario.loads[1:]] + [0.0]
-    accelerations = scenario.ideal_descent_m_s2(gravity_m_s2)
-    energy = sum(-a * (top - bottom) for a, top, bottom in zip(accelerations, heights[:-1], heights[1:], strict=True))
-    return math.sqrt(2.0 * energy)
+#: Pads selectable by name: Table 1's, and the fits stored in config/pads.toml with their provenance.
+PAD_NAMES = ("paper", "calibrated", "paper-simulation")
 
 
 class LandingModel:
     """The first contact of a scenario's ideal landing, for any pad (K, D)."""
 
     def __init__(self, scenario: Scenario, params: RigParams | None = None) -> None:
-        params = scenario.rig_params(RigParams() if params is None else params)
+        params = RigParams() if params is None else params
         placed = scenario.stages_kg[-1]
         self.mass_kg = params.lander.mass_kg + placed
         self.params = params
         self.pad_test = build_pad_test(params, field_m_s2=placed * params.gravity_m_s2 / self.mass_kg)
         model = self.pad_test.model
         model.body_mass[model.body("lander").id] = self.mass_kg
-        self.impact_speed_m_s = impact_speed_m_s(scenario, params.gravity_m_s2)
+        self.impact_speed_m_s = scenario.impact_speed_m_s(params.lander.mass_kg, params.gravity_m_s2)
         self._pad = model.geom("pad").id
         self._data = mujoco.MjData(model)
         self._force = int(model.sensor_adr[model.sensor("pad_force").id])
@@ -179,24 +179,43 @@ def calibrate(params: RigParams | None = None, source: str = "experiment", max_i
     return Calibration(stiffness, damping, tuple(map(float, r[:3])), tuple(map(float, r[3:])), iterations)
 
 
-@functools.lru_cache(maxsize=1)
-def calibrated_pad() -> tuple[float, float]:
-    """K and D of the pad calibrated to the paper's experiments (computed once per process)."""
-    result = calibrate()
-    return result.stiffness_n_per_m, result.damping_n_s_per_m
+def stored_pads() -> dict[str, dict]:
+    """The fitted pads of config/pads.toml, each with its K, D and provenance."""
+    text = resources.files("microg_env").joinpath("config", "pads.toml").read_text(encoding="utf-8")
+    return tomllib.loads(text)
 
 
-def pad_values(pad: str) -> tuple[float, float]:
-    """K and D of Table 1's pad ("paper") or of the pad calibrated to the experiments ("calibrated")."""
-    if pad == "paper":
-        table1 = RigParams().pad
-        return table1.stiffness_n_per_m, table1.damping_n_s_per_m
-    if pad == "calibrated":
-        return calibrated_pad()
-    raise ValueError(f"pad must be 'paper' or 'calibrated', got {pad!r}")
+def stored_calibration(name: str) -> Calibration:
+    """The fit stored under ``name`` ("calibrated" or "paper-simulation") in config/pads.toml."""
+    if name not in PAD_NAMES[1:]:
+        raise ValueError(f"stored pad must be one of {', '.join(PAD_NAMES[1:])}, got {name!r}")
+    stored = stored_pads()[name]
+    return Calibration(
+        stored["stiffness_n_per_m"],
+        stored["damping_n_s_per_m"],
+        tuple(stored["max_deformation_pct"]),
+        tuple(stored["collision_accel_pct"]),
+        stored["iterations"],
+    )
 
 
-def with_pad(scenario: Scenario, pad: str) -> Scenario:
-    """``scenario`` with the named pad (see :func:`pad_values`)."""
-    stiffness, damping = pad_values(pad)
-    return replace(scenario, pad_stiffness_n_per_m=stiffness, pad_damping_n_s_per_m=damping)
+def pad_params(name: str) -> PadParams:
+    """Table 1's pad ("paper"), or a fitted pad stored in config/pads.toml by ``microg calibrate``:
+    "calibrated" (fitted to the paper's experiments) or "paper-simulation" (the pad with which this
+    model lands as the paper's simulation did)."""
+    if name not in PAD_NAMES:
+        raise ValueError(f"pad must be one of {', '.join(PAD_NAMES)}, got {name!r}")
+    table1 = PadParams()
+    if name == "paper":
+        return table1
+    fit = stored_calibration(name)
+    return replace(table1, stiffness_n_per_m=fit.stiffness_n_per_m, damping_n_s_per_m=fit.damping_n_s_per_m)
+
+
+def with_pad(params: RigParams, name: str) -> RigParams:
+    """``params`` with the named pad (see :func:`pad_params`)."""
+    pad = pad_params(name)
+    return replace(
+        params,
+        pad=replace(params.pad, stiffness_n_per_m=pad.stiffness_n_per_m, damping_n_s_per_m=pad.damping_n_s_per_m),
+    )

@@ -15,14 +15,21 @@ from dataclasses import dataclass, replace
 import mujoco
 import numpy as np
 
-from microg_env.params import LOAD_CAPACITY_KG, RigParams
+from microg_env import validate
+from microg_env.params import LOAD_CAPACITY_KG, MIN_STEPS_PER_CONTACT, PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RigParams
 from microg_env.sim.contact import SpringDamperContact
+from microg_env.sim.limits import check_damping
 from microg_env.sim.model import PadTest, build_pad_test
 
-#: Height above the pad at which the drop starts, m (reached at constant speed in zero field).
-_START_HEIGHT_M = 1.0e-3
-#: Steps per contact time at least; the physics step is shortened for very short contacts.
+#: Physics steps the drop starts above the pad (reached at constant speed in zero field).
+_APPROACH_STEPS = 5
+#: Physics steps per contact time the drop aims for; the step is never finer than the finest
+#: physics step accepted, and the pad is rejected below MIN_STEPS_PER_CONTACT.
 _STEPS_PER_CONTACT = 2000
+#: Smallest peak deformation the drop test resolves, m.
+_MIN_DEFORMATION_M = 1.0e-6
+#: Longest contact (and static settling) a drop test simulates, s.
+_MAX_SIMULATED_S = 120.0
 
 
 @dataclass(frozen=True)
@@ -78,34 +85,50 @@ class DropReport:
         return {name: getattr(self, name).as_dict() for name in names}
 
 
-def _positive(name: str, value: float, unit: str) -> float:
-    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a positive finite number of {unit}, got {value!r}")
-    return float(value)
+def drop_physics_step(contact: SpringDamperContact) -> float:
+    """The physics step of a drop test: 1/2000 of the contact time, within the accepted range."""
+    low, high = PHYSICS_STEP_RANGE_S
+    return min(max(contact.contact_time_s / _STEPS_PER_CONTACT, low), PHYSICS_STEP_S, high)
 
 
-def validate_drop(mass_kg: float, stiffness: float, damping: float, impact_speed: float, params: RigParams) -> None:
-    """Reject inputs the Section 2 model or the rig cannot take, naming the bad value."""
-    _positive("mass", mass_kg, "kg")
-    _positive("stiffness", stiffness, "N/m")
-    _positive("damping", damping, "N s/m")
-    _positive("velocity", impact_speed, "m/s")
-    if mass_kg > LOAD_CAPACITY_KG:
-        raise ValueError(f"mass {mass_kg!r} kg exceeds the rig's {LOAD_CAPACITY_KG:g} kg load capacity")
-    contact = SpringDamperContact(mass_kg, stiffness, damping)  # raises for xi >= 1
+def validate_drop(
+    mass_kg: float, stiffness: float, damping: float, impact_speed: float, params: RigParams
+) -> SpringDamperContact:
+    """Reject inputs the Section 2 model, the rig or the physics step cannot take, naming the bad value."""
+    validate.positive("mass", mass_kg, "kg", LOAD_CAPACITY_KG, "the rig's load capacity")
+    validate.positive("stiffness", stiffness, "N/m")
+    validate.positive("damping", damping, "N s/m")
+    validate.positive("velocity", impact_speed, "m/s")
+    contact = check_damping(mass_kg, stiffness, damping)
+    if contact.contact_time_s > _MAX_SIMULATED_S:
+        raise ValueError(
+            f"stiffness {stiffness!r} N/m with mass {mass_kg!r} kg gives a {contact.contact_time_s:.3g} s contact, "
+            f"longer than the {_MAX_SIMULATED_S:g} s a drop test simulates"
+        )
+    if contact.contact_time_s / drop_physics_step(contact) < MIN_STEPS_PER_CONTACT:
+        raise ValueError(
+            f"stiffness {stiffness!r} N/m with mass {mass_kg!r} kg gives a {contact.contact_time_s:.3g} s contact, "
+            f"fewer than {MIN_STEPS_PER_CONTACT} of the finest physics step ({PHYSICS_STEP_RANGE_S[0]:g} s)"
+        )
     depth = contact.max_deformation_m(impact_speed)
     if depth >= params.pad.thickness_m:
         raise ValueError(
             f"velocity {impact_speed!r} m/s gives a {depth * 1e3:.1f} mm deformation, beyond the pad's "
             f"{params.pad.thickness_m * 1e3:.0f} mm thickness"
         )
+    if depth < _MIN_DEFORMATION_M:
+        raise ValueError(
+            f"velocity {impact_speed!r} m/s gives a {depth * 1e6:.3g} um deformation, below the "
+            f"{_MIN_DEFORMATION_M * 1e6:g} um the drop test resolves"
+        )
+    return contact
 
 
 def simulate_drop(pad_test: PadTest, impact_speed_m_s: float, duration_s: float) -> DropTrace:
-    """Start the sole 1 mm above the pad at ``impact_speed_m_s`` downward and record ``duration_s``."""
+    """Start the sole a few steps above the pad at ``impact_speed_m_s`` downward; record ``duration_s``."""
     model = pad_test.model
     data = mujoco.MjData(model)
-    data.qpos[0] = _START_HEIGHT_M
+    data.qpos[0] = _APPROACH_STEPS * model.opt.timestep * impact_speed_m_s
     data.qvel[0] = -impact_speed_m_s
     n_steps = math.ceil(duration_s / model.opt.timestep)
     time, height, velocity, force = (np.empty(n_steps) for _ in range(4))
@@ -151,17 +174,15 @@ def drop_test(
 ) -> DropReport:
     """Drop a lander of ``mass_kg`` on a pad (K, D) at ``impact_speed_m_s`` and compare with Section 2."""
     params = RigParams() if params is None else params
-    validate_drop(mass_kg, stiffness_n_per_m, damping_n_s_per_m, impact_speed_m_s, params)
-    contact = SpringDamperContact(mass_kg, stiffness_n_per_m, damping_n_s_per_m)
+    contact = validate_drop(mass_kg, stiffness_n_per_m, damping_n_s_per_m, impact_speed_m_s, params)
     params = replace(
         params,
         lander=replace(params.lander, mass_kg=mass_kg),
         pad=replace(params.pad, stiffness_n_per_m=stiffness_n_per_m, damping_n_s_per_m=damping_n_s_per_m),
-        timestep_s=min(params.timestep_s, contact.contact_time_s / _STEPS_PER_CONTACT),
     )
-    pad_test = build_pad_test(params)
-    approach = _START_HEIGHT_M / impact_speed_m_s
-    trace = simulate_drop(pad_test, impact_speed_m_s, approach + 1.2 * contact.contact_time_s)
+    step = drop_physics_step(contact)
+    pad_test = build_pad_test(params, physics_step_s=step)
+    trace = simulate_drop(pad_test, impact_speed_m_s, _APPROACH_STEPS * step + 1.2 * contact.contact_time_s)
     t_touch, t_lift, in_contact = _contact_window(trace)
     deformation, rate = -trace.height_m, -trace.velocity_m_s
     fitted_k, fitted_d = fit_spring_damper(deformation[in_contact], rate[in_contact], trace.force_n[in_contact])
@@ -187,12 +208,13 @@ def static_sink(params: RigParams, load_n: float, settle_decays: float = 12.0) -
     The lander starts at rest on the undeformed pad in zero field; the load is applied as a
     constant force and the pad rings down for ``settle_decays`` decay times 2M/D.
     """
-    _positive("load", load_n, "N")
+    validate.positive("load", load_n, "N")
+    duration = settle_decays * 2.0 * params.lander.mass_kg / params.pad.damping_n_s_per_m
+    validate.positive("settling time", duration, "s", _MAX_SIMULATED_S, "settle_decays decay times 2 M / D")
     pad_test = build_pad_test(params)
     model = pad_test.model
     data = mujoco.MjData(model)
     data.qfrc_applied[0] = -load_n
-    duration = settle_decays * 2.0 * pad_test.mass_kg / params.pad.damping_n_s_per_m
     for _ in range(math.ceil(duration / model.opt.timestep)):
         mujoco.mj_step(model, data)
     return -float(data.qpos[0])

@@ -2,9 +2,12 @@
 
 :func:`build_rig` loads the MJCF template with :class:`mujoco.MjSpec`, writes every physical value
 of :class:`~microg_env.params.RigParams` into it (masses, geometry, springs, friction, servo drive,
-pad contact), adds the external loads of a run and compiles. :class:`Rig` holds the compiled model
-and the addresses a simulation needs. :func:`pad_contact_solref` turns the pad's K and D into
-MuJoCo's ``solref``/``solimp``.
+pad contact), gives it one body per test weight and compiles. :class:`Rig` holds the compiled model,
+the addresses a simulation needs, and :meth:`Rig.episode_fields`: the model field values that
+change from episode to episode (the test weights placed, the balancer's trim, a randomised lander,
+pad or friction). They are written into the one model of a single rig, or per simulation into a
+``mujoco.batch.Batch``, so nothing is recompiled at a reset. :func:`pad_contact_solref` turns the
+pad's K and D into MuJoCo's ``solref``/``solimp``.
 """
 
 from __future__ import annotations
@@ -16,14 +19,37 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from microg_env.params import RigParams
+from microg_env import validate
+from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RigParams, parameter_paths
 
 #: Density of the steel test weights (for their size only; their mass is what matters).
 _STEEL_DENSITY_KG_M3 = 7850.0
 #: Template load bodies in rig.xml (the paper's weights, Table 2); build_rig replaces them.
 TEMPLATE_LOADS = {"load_50g": 0.05, "load_490g": 0.49, "load_1kg": 1.0}
-#: Depths at which the number of foot-pad contact points is counted (it must not change).
-_PROBE_DEPTHS_M = (1e-3, 2e-2)
+#: The foot's collision cylinder reaches this far above the pad's full depth, m, so that only its
+#: sole ever touches the pad, at any deformation the pad allows.
+_FOOT_COLLISION_MARGIN_M = 0.01
+#: Linear damping of the ideal drive's speed source, N s/m at the support: the largest load the
+#: screw meets (~6.5 kN) leaves a speed error of 6.5 nm/s. Implicit in MuJoCo's ``implicitfast``
+#: integrator, so it neither lags nor chatters at any physics step.
+IDEAL_DRIVE_DAMPING_N_S_PER_M = 1.0e12
+#: Index of the dcmotor's setpoint slew rate (rad/s) in ``actuator_dynprm``.
+SLEW_PARAMETER = 7
+#: Slew rate standing for a zero speed reference (a zero rate would switch the slew limiter off).
+MIN_SLEW_RAD_S = 1e-12
+#: Parameters that :meth:`Rig.episode_fields` can change without recompiling the model.
+EPISODE_PARAMETERS = frozenset(
+    {
+        "lander.mass_kg",
+        "pad.stiffness_n_per_m",
+        "pad.damping_n_s_per_m",
+        "qzs.guide_friction_n",
+        "qzs.guide_static_friction_n",
+        "qzs.guide_damping_n_s_per_m",
+        "servo.coulomb_torque_n_m",
+        "servo.static_torque_n_m",
+    }
+)
 
 
 def mjcf_dir() -> Path:
@@ -52,71 +78,206 @@ def pad_contact_solref(
     with r the penetration (negative) and F_other every other force on the lander. Choosing
         s = K (1 + (n-1) d) / (n m),   b = D (1 + (n-1) d) / (n m)
     gives m a = (1 - d) / (1 + (n-1) d) F_other - K r - D r': the impact is exactly Eq. (1), and
-    every other force during contact is scaled by ~1 - n d (0.9996 for d = 1e-4, n = 4), so the
-    static sink under a load F is F/K to 4e-4.
+    every other force during contact is scaled by ~1 - n d (0.9997 for d = 1e-4, n = 3), so the
+    static sink under a load F is F/K to 3e-4.
     """
-    for name, value in (
-        ("stiffness", stiffness_n_per_m),
-        ("damping", damping_n_s_per_m),
-        ("mass", mass_kg),
-    ):
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    if n_contacts < 1:
-        raise ValueError(f"n_contacts must be >= 1, got {n_contacts!r}")
+    validate.positive("pad stiffness", stiffness_n_per_m, "N/m")
+    validate.positive("pad damping", damping_n_s_per_m, "N s/m")
+    validate.positive("mass", mass_kg, "kg")
+    validate.integer("n_contacts", n_contacts, 1)
     scale = (1.0 + (n_contacts - 1) * impedance) / (n_contacts * mass_kg)
     solref = np.array([-stiffness_n_per_m * scale, -damping_n_s_per_m * scale])
     solimp = np.array([impedance, impedance, 0.001, 0.5, 2.0])
     return solref, solimp
 
 
+@dataclass(frozen=True)
+class FlexibleUnit:
+    """QZS mechanism and nitrogen balancer, balanced to carry the lander at x = 0."""
+
+    qzs_force_n: float  # QZS force on the lander at x = 0
+    balancer_force_n: float  # the balancer's force at its trim point
+    balancer_stiffness_n_per_m: float  # k = n F A / V
+    #: Support force lost per metre of x: the QZS's residual stiffness (Eq. 17), plus the
+    #: balancer's when it acts in parallel with the QZS. Negative for Eq. 17's literal reading.
+    x_stiffness_n_per_m: float
+    #: Static load on the screw at the balancer's trim point (lander and support weight, minus
+    #: the balancer's force when it acts between frame and support), N.
+    screw_load_n: float
+
+
+def flexible_unit(params: RigParams) -> FlexibleUnit:
+    """Forces and stiffnesses of the flexible unit for ``params`` (see BalancerParams.placement)."""
+    qzs, g = params.qzs, params.gravity_m_s2
+    lander_weight = params.lander.mass_kg * g
+    carried_weight = (params.lander.mass_kg + params.screw.support_mass_kg) * g
+    if params.balancer.placement == "frame_support":
+        balancer_force = carried_weight
+        qzs_force = lander_weight
+        stiffness = params.balancer.stiffness_n_per_m(balancer_force)
+        return FlexibleUnit(qzs_force, balancer_force, stiffness, qzs.residual_stiffness_n_per_m, 0.0)
+    qzs_force = qzs.weight_share * lander_weight
+    balancer_force = lander_weight - qzs_force
+    stiffness = params.balancer.stiffness_n_per_m(balancer_force)
+    return FlexibleUnit(
+        qzs_force, balancer_force, stiffness, qzs.residual_stiffness_n_per_m + stiffness, carried_weight
+    )
+
+
+def servo_max_speed_rad_s(params: RigParams) -> float:
+    """The motor's speed at the mechanism's maximum vertical speed, rad/s (Section 4.1)."""
+    return params.screw.max_speed_m_per_s * params.screw.gear_rad_per_m
+
+
+def speed_loop_gains(params: RigParams) -> tuple[float, float]:
+    """The drive's PI speed loop as dcmotor gains (kp, kd), N m/rad and N m s/rad.
+
+    kd = Kv J and kp = Kv J / Ti, with J the inertia the loop drives at the motor: rotor, screw
+    and the floating support reflected through the screw (the lander hangs on the 1.2 Hz QZS
+    spring, far below the loop's bandwidth, so the loop does not feel it).
+    """
+    screw, servo = params.screw, params.servo
+    loop_inertia = (
+        servo.rotor_inertia_kg_m2 + screw.screw_inertia_kg_m2 + screw.support_mass_kg / screw.gear_rad_per_m**2
+    )
+    kd = 2.0 * math.pi * servo.speed_loop_gain_hz * loop_inertia
+    return kd / servo.speed_integral_time_s, kd
+
+
+#: A model field write: (MjModel field name, index into it, value).
+FieldWrite = tuple[str, tuple | int, float | np.ndarray]
+
+
 class Rig:
-    """A compiled rig model, the addresses a simulation needs, and which test weights are placed.
+    """A compiled rig model, the addresses a simulation needs, and its per-episode field values.
 
     A test weight that is not yet placed is held off the lander (by the experimenter's hand): it
     has no mass in the model, so it neither weighs on the lander nor adds to its inertia. Placing
-    it (:meth:`place_loads`) gives it its mass and retunes the pad contact to the new total mass.
-    The load configuration lives in ``model``, so use one Rig per simulated rig.
+    it gives it its mass and retunes the pad contact to the new total mass. :meth:`configure`,
+    :meth:`place_loads` and :meth:`trim_balancer` write the episode's values into ``model``; a
+    batch of rigs writes the same values (:meth:`episode_fields`) per simulation instead.
     """
 
-    def __init__(self, model: mujoco.MjModel, params: RigParams, loads_kg: tuple[float, ...], pad_contacts: int):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        params: RigParams,
+        loads_kg: tuple[float, ...],
+        pad_contacts: int,
+        ideal_drive: bool,
+    ) -> None:
         self.model = model
         self.params = params
         self.loads_kg = loads_kg
         self.pad_contacts = pad_contacts
+        self.ideal_drive = ideal_drive
         screw, qzs = model.joint("screw").id, model.joint("qzs").id
         self.screw_qpos = int(model.jnt_qposadr[screw])
         self.qzs_qpos = int(model.jnt_qposadr[qzs])
         self.screw_dof = int(model.jnt_dofadr[screw])
         self.qzs_dof = int(model.jnt_dofadr[qzs])
         self.gear = params.screw.gear_rad_per_m  # motor radians per metre of support travel
+        self.lander_body = model.body("lander").id
         self.load_bodies = np.array([model.body(f"load_{i}").id for i in range(len(loads_kg))], dtype=int)
         self._load_geoms = np.array([model.geom(f"load_{i}").id for i in range(len(loads_kg))], dtype=int)
-        self._load_inertia = model.body_inertia[self.load_bodies].copy()
+        self._unit_load_inertia = model.body_inertia[self.load_bodies] / np.array(loads_kg)[:, None]
         self._pad_geom = model.geom("pad").id
+        self._balancer = model.tendon("balancer").id
+        self._servo = model.actuator("servo").id
+        self._guide = model.actuator("guide_friction").id
+        #: Index of the drive's interpolated position reference (its slew state) in ``data.act``.
+        self.reference_act = int(model.actuator_actadr[self._servo])
+        #: Index of the drive current (the torque filter's state) in ``data.act``, or None.
+        self.current_act = int(model.actuator_actadr[self._servo] + model.actuator_actnum[self._servo] - 1)
+        if ideal_drive or params.servo.torque_filter_s == 0:
+            self.current_act = None
+        self._motor_lugre = not ideal_drive and params.servo.bristle_stiffness_n_m_per_rad > 0
+        self._guide_lugre = params.qzs.guide_friction_n > 0
         self.placed = np.ones(len(loads_kg), dtype=bool)  # as compiled: every weight on the lander
         self.placed_load_kg = float(sum(loads_kg))  # total of the weights on the lander, kg
+        self.trim_height_m = 0.0
+
+    # -- per-episode field values ----------------------------------------------------------
+
+    def episode_fields(
+        self, params: RigParams, loads_kg: tuple[float, ...], placed: np.ndarray, trim_height_m: float
+    ) -> list[FieldWrite]:
+        """Model field values for ``params``, these test weights (``placed`` on the lander) and a
+        balancer trimmed at support height ``trim_height_m``; ``params`` may differ from the
+        built rig's only in :data:`EPISODE_PARAMETERS`."""
+        self._check_episode_params(params)
+        loads = np.asarray(loads_kg, dtype=float)
+        placed = np.asarray(placed, dtype=bool)
+        lander_mass = params.lander.mass_kg
+        carried = lander_mass + float(np.dot(loads, placed))
+        unit = flexible_unit(params)
+        pad = params.pad
+        solref, _ = pad_contact_solref(
+            pad.stiffness_n_per_m, pad.damping_n_s_per_m, carried, self.pad_contacts, pad.impedance
+        )
+        trim_length = unit.balancer_force_n / unit.balancer_stiffness_n_per_m
+        if params.balancer.placement == "frame_support":
+            trim_length += trim_height_m  # the balancer's length is the support's height
+        writes: list[FieldWrite] = [
+            ("body_mass", self.lander_body, lander_mass),
+            ("body_mass", self.load_bodies, np.where(placed, loads, 0.0)),
+            (
+                "body_inertia",
+                self.load_bodies,
+                np.where(placed[:, None], loads[:, None] * self._unit_load_inertia, 0.0),
+            ),
+            ("geom_rgba", (self._load_geoms, 3), np.where(placed, 1.0, 0.25)),  # held weights drawn faint
+            ("geom_solref", self._pad_geom, solref),
+            ("qpos_spring", self.qzs_qpos, unit.qzs_force_n / params.qzs.residual_stiffness_n_per_m),
+            ("tendon_stiffness", self._balancer, unit.balancer_stiffness_n_per_m),
+            ("tendon_lengthspring", self._balancer, np.array([trim_length, trim_length])),
+            ("dof_damping", self.qzs_dof, params.qzs.guide_damping_n_s_per_m),
+        ]
+        # dcmotor bias parameters 3 and 4 are the LuGre Coulomb and static friction.
+        if self._motor_lugre:
+            writes.append(("actuator_biasprm", (self._servo, 3), params.servo.coulomb_torque_n_m))
+            writes.append(("actuator_biasprm", (self._servo, 4), params.servo.static_torque_n_m))
+        if self._guide_lugre:
+            writes.append(("actuator_biasprm", (self._guide, 3), params.qzs.guide_friction_n))
+            writes.append(("actuator_biasprm", (self._guide, 4), params.qzs.guide_static_friction_n))
+        return writes
+
+    def _check_episode_params(self, params: RigParams) -> None:
+        built, given = parameter_paths(self.params), parameter_paths(params)
+        changed = sorted(path for path in built if built[path] != given[path] and path not in EPISODE_PARAMETERS)
+        if changed:
+            raise ValueError(f"parameters {', '.join(changed)} differ from the built rig's: build a new rig")
+
+    def write(self, writes: list[FieldWrite]) -> None:
+        """Write field values into this rig's model."""
+        for name, index, value in writes:
+            getattr(self.model, name)[index] = value
+
+    def configure(self, params: RigParams, loads_kg: tuple[float, ...] | None = None) -> None:
+        """Make the model that of ``params`` and these test weights (held), without recompiling."""
+        loads_kg = self.loads_kg if loads_kg is None else tuple(float(m) for m in loads_kg)
+        if len(loads_kg) != len(self.loads_kg):
+            raise ValueError(f"the rig has {len(self.loads_kg)} test weights, got {len(loads_kg)}")
+        validate_loads(loads_kg, params.lander.mass_kg)
+        placed = np.zeros(len(loads_kg), dtype=bool)
+        self.write(self.episode_fields(params, loads_kg, placed, self.trim_height_m))
+        self.params, self.loads_kg, self.placed, self.placed_load_kg = params, loads_kg, placed, 0.0
 
     def place_loads(self, placed: np.ndarray | list[bool]) -> None:
         """Put each test weight on the lander (True) or hold it off (False)."""
         placed = np.asarray(placed, dtype=bool)
         if placed.shape != self.placed.shape:
             raise ValueError(f"placed must have one entry per load ({self.placed.size}), got shape {placed.shape}")
-        self.placed[:] = placed
+        self.write(self.episode_fields(self.params, self.loads_kg, placed, self.trim_height_m))
+        self.placed = placed.copy()
         self.placed_load_kg = float(np.dot(self.loads_kg, placed)) if self.loads_kg else 0.0
-        model = self.model
-        model.body_mass[self.load_bodies] = np.where(placed, self.loads_kg, 0.0)
-        model.body_inertia[self.load_bodies] = np.where(placed[:, None], self._load_inertia, 0.0)
-        model.geom_rgba[self._load_geoms, 3] = np.where(placed, 1.0, 0.25)  # held weights drawn faint
-        pad = self.params.pad
-        solref, _ = pad_contact_solref(
-            pad.stiffness_n_per_m,
-            pad.damping_n_s_per_m,
-            self.params.lander.mass_kg + self.placed_load_kg,
-            self.pad_contacts,
-            pad.impedance,
-        )
-        model.geom_solref[self._pad_geom] = solref
+
+    def trim_balancer(self, support_height_m: float) -> None:
+        """Balance the rig at this support height (Section 4.1: balanced before each test)."""
+        self.trim_height_m = float(support_height_m)
+        self.write(self.episode_fields(self.params, self.loads_kg, self.placed, self.trim_height_m))
+
+    # -- state --------------------------------------------------------------------------------
 
     def foot_height(self, data: mujoco.MjData) -> float:
         """Height of the foot's sole above the undeformed pad, m (negative: deforming the pad)."""
@@ -129,17 +290,41 @@ class Rig:
     def reset(self, data: mujoco.MjData, height_m: float) -> None:
         """Balanced rest: foot ``height_m`` above the pad, x = 0, servo holding, no weight placed."""
         self.place_loads(np.zeros(len(self.loads_kg), dtype=bool))
+        self.trim_balancer(height_m)
         mujoco.mj_resetData(self.model, data)
         data.qpos[self.screw_qpos] = height_m
-        # The speed loop's position term holds the weight with a small lag behind its reference.
-        data.ctrl[:] = ((height_m + self.holding_sag_m()) * self.gear, 0.0)
+        if self.ideal_drive:
+            data.ctrl[0] = 0.0
+        else:
+            # The speed loop's position term holds the screw's static load with a small lag.
+            load = flexible_unit(self.params).screw_load_n
+            kp, _ = speed_loop_gains(self.params)
+            data.ctrl[:] = (height_m * self.gear + load / (self.gear * kp), 0.0)
+            data.act[self.reference_act] = data.ctrl[0]
+            if self.current_act is not None:  # the torque filter starts settled on that load
+                data.act[self.current_act] = load / self.gear / self.params.servo.torque_constant_n_m_per_a
         mujoco.mj_forward(self.model, data)
 
-    def holding_sag_m(self) -> float:
-        """Support lag at which the speed loop's position term carries lander and support, m."""
-        weight = (self.params.lander.mass_kg + self.params.screw.support_mass_kg) * self.params.gravity_m_s2
-        kp, _ = speed_loop_gains(self.params)
-        return weight / (self.gear**2 * kp)
+    def drive(self, data: mujoco.MjData, position_ref_rad: float, speed_ref_rad_s: float, steps: int) -> float:
+        """Step ``steps`` physics steps at a constant speed reference; returns the position
+        reference reached at their end.
+
+        The real drive interpolates its position reference from ``position_ref_rad`` as a ramp at
+        the commanded speed (Section 4.1's servo receives a speed command every control period).
+        The dcmotor's setpoint slew limiter realises that ramp inside MuJoCo: the setpoint is the
+        period's end and the slew rate the commanded speed, so the reference moves by exactly
+        speed x step in every physics step (it reads the end of each step, where a first-order
+        integrator's force is held over the step).
+        """
+        model, ctrl, dt = self.model, data.ctrl, self.model.opt.timestep
+        end = position_ref_rad + speed_ref_rad_s * dt * steps
+        if self.ideal_drive:
+            ctrl[0] = speed_ref_rad_s
+        else:
+            model.actuator_dynprm[self._servo, SLEW_PARAMETER] = max(abs(speed_ref_rad_s), MIN_SLEW_RAD_S)
+            ctrl[0], ctrl[1] = end, speed_ref_rad_s
+        mujoco.mj_step(model, data, nstep=steps)
+        return end
 
 
 def _load_geometry(mass_kg: float) -> tuple[float, float]:
@@ -148,15 +333,14 @@ def _load_geometry(mass_kg: float) -> tuple[float, float]:
     return radius, 0.75 * radius
 
 
-def _validate_loads(loads_kg: tuple[float, ...], lander_mass_kg: float) -> None:
+def validate_loads(loads_kg: tuple[float, ...], lander_mass_kg: float) -> None:
     """Test weights are small excitations of the balanced lander.
 
     The rig simulates 1e-2 to 1e-4 g (Conclusions); a total m above M/99 would make the simulated
     field m g / (M + m) exceed 1e-2 g.
     """
     for i, mass in enumerate(loads_kg):
-        if not (isinstance(mass, int | float) and math.isfinite(mass) and mass > 0):
-            raise ValueError(f"load {i} mass must be a positive finite number of kg, got {mass!r}")
+        validate.positive(f"load {i} mass", mass, "kg")
     limit = lander_mass_kg / 99.0
     if sum(loads_kg) > limit:
         raise ValueError(
@@ -165,20 +349,26 @@ def _validate_loads(loads_kg: tuple[float, ...], lander_mass_kg: float) -> None:
         )
 
 
-def _apply_geometry_and_masses(spec: mujoco.MjSpec, params: RigParams) -> None:
+def _apply_geometry_and_masses(spec: mujoco.MjSpec, params: RigParams, physics_step_s: float) -> None:
     lander, pad, screw = params.lander, params.pad, params.screw
-    spec.option.timestep = params.timestep_s
+    spec.option.timestep = physics_step_s
     spec.option.gravity = (0.0, 0.0, -params.gravity_m_s2)
     spec.option.enableflags |= mujoco.mjtEnableBit.mjENBL_DIAGEXACT
     spec.body("lander").mass = lander.mass_kg
     spec.body("floating_support").mass = screw.support_mass_kg
+    # The collision foot reaches above the pad's full depth so that only its sole touches the pad.
+    reach = pad.thickness_m + _FOOT_COLLISION_MARGIN_M
     foot = spec.geom("foot")
-    foot.size = (lander.foot_radius_m, lander.foot_height_m / 2.0, 0.0)
-    foot.pos = (0.0, 0.0, lander.foot_height_m / 2.0)
+    foot.size = (lander.foot_radius_m, reach / 2.0, 0.0)
+    foot.pos = (0.0, 0.0, reach / 2.0)
+    plate = spec.geom("foot_plate")
+    plate.size = (lander.foot_radius_m, lander.foot_height_m / 2.0, 0.0)
+    plate.pos = (0.0, 0.0, lander.foot_height_m / 2.0)
     spec.site("foot_sole").size = (1.1 * lander.foot_radius_m, 0.03, 0.0)
-    pad_geom = spec.geom("pad")
-    pad_geom.size = (pad.half_width_m, pad.half_width_m, pad.thickness_m / 2.0)
-    pad_geom.pos = (0.0, 0.0, -pad.thickness_m / 2.0)
+    spec.geom("pad").size = (pad.half_width_m, pad.half_width_m, 0.01)
+    block = spec.geom("pad_block")
+    block.size = (pad.half_width_m, pad.half_width_m, pad.thickness_m / 2.0)
+    block.pos = (0.0, 0.0, -pad.thickness_m / 2.0)
     spec.joint("screw").range = screw.range_m
     spec.joint("qzs").range = (-params.qzs.stroke_m / 2.0, params.qzs.stroke_m / 2.0)
 
@@ -207,70 +397,59 @@ def _add_loads(spec: mujoco.MjSpec, loads_kg: tuple[float, ...]) -> None:
         )
 
 
-@dataclass(frozen=True)
-class FlexibleUnit:
-    """QZS mechanism and nitrogen balancer, balanced to carry the lander at x = 0."""
-
-    qzs_force_n: float  # QZS force at x = 0: its weight share plus Eq. (17)'s constant term
-    balancer_force_n: float  # the rest of the lander's weight (the balancer is trimmed, Section 4.1)
-    balancer_stiffness_n_per_m: float
-    stiffness_n_per_m: float  # QZS (Eq. 17) plus balancer: the force lost per metre of x
-
-
-def flexible_unit(params: RigParams) -> FlexibleUnit:
-    """Forces and stiffness of the flexible unit for ``params``."""
-    qzs, weight = params.qzs, params.lander.mass_kg * params.gravity_m_s2
-    qzs_force = qzs.weight_share * weight + qzs.force_offset_n
-    balancer_force = weight - qzs_force
-    if balancer_force <= 0:
-        raise ValueError(f"QZSParams.weight_share {qzs.weight_share!r} leaves the balancer no weight to carry")
-    balancer_stiffness = params.balancer.stiffness_n_per_m(balancer_force)
-    return FlexibleUnit(qzs_force, balancer_force, balancer_stiffness, qzs.stiffness_n_per_m + balancer_stiffness)
-
-
 def _apply_flexible_unit(spec: mujoco.MjSpec, params: RigParams) -> None:
-    """QZS spring (Eq. 17) and nitrogen balancer as preloaded linear springs on x."""
+    """QZS spring (Eq. 17) on x, and the balancer's gas spring where ``placement`` puts it."""
     unit, qzs = flexible_unit(params), params.qzs
     joint = spec.joint("qzs")
-    joint.stiffness = (qzs.stiffness_n_per_m, 0.0, 0.0)
-    joint.springref = unit.qzs_force_n / qzs.stiffness_n_per_m
+    joint.stiffness = (qzs.residual_stiffness_n_per_m, 0.0, 0.0)
+    joint.springref = unit.qzs_force_n / qzs.residual_stiffness_n_per_m
     joint.damping = (qzs.guide_damping_n_s_per_m, 0.0, 0.0)
-    joint.frictionloss = qzs.guide_friction_n
+    spec.actuator("guide_friction").set_to_dcmotor(
+        motorconst=(0.0, 0.0),  # passive: no electrical branch, no inputs
+        resistance=1.0,
+        lugre=(
+            qzs.guide_bristle_stiffness_n_per_m if qzs.guide_friction_n > 0 else 0.0,  # 0: no friction
+            qzs.guide_bristle_damping_n_s_per_m,
+            qzs.guide_friction_n,
+            qzs.guide_static_friction_n,
+            qzs.guide_stribeck_speed_m_s,
+        ),
+        ctrlspec=mujoco.mjtCtrlInput.mjINPUT_NONE,
+    )
+    if params.balancer.placement == "support_lander":  # the template's balancer acts on the screw
+        spec.delete(spec.tendon("balancer"))
+        spec.add_tendon(name="balancer").wrap_joint("qzs", 1.0)
     tendon = spec.tendon("balancer")
-    free_length = unit.balancer_force_n / unit.balancer_stiffness_n_per_m
     tendon.stiffness = (unit.balancer_stiffness_n_per_m, 0.0, 0.0)
+    free_length = unit.balancer_force_n / unit.balancer_stiffness_n_per_m
     tendon.springlength = (free_length, free_length)
 
 
-def speed_loop_gains(params: RigParams) -> tuple[float, float]:
-    """The drive's PI speed loop as dcmotor gains (kp, kd), N m/rad and N m s/rad.
+def _apply_servo(spec: mujoco.MjSpec, params: RigParams, ideal_drive: bool) -> None:
+    """Screw stage and drive: gear, reflected inertia, friction, limits and the PI speed loop.
 
-    kd = Kv J and kp = Kv J / Ti, with J the inertia the loop drives at the motor: rotor, screw
-    and the floating support reflected through the screw (the lander hangs on the 1.2 Hz QZS
-    spring, far below the loop's bandwidth, so the loop does not feel it).
+    The ideal drive (``ideal_drive``) is a speed source: a velocity actuator so stiff that the
+    support follows the speed reference exactly, integrated implicitly so that it never chatters.
+    Its torque is unlimited (a limited one would saturate on every change of the reference).
     """
     screw, servo = params.screw, params.servo
-    loop_inertia = (
-        servo.rotor_inertia_kg_m2 + screw.screw_inertia_kg_m2 + screw.support_mass_kg / screw.gear_rad_per_m**2
-    )
-    kd = 2.0 * math.pi * servo.speed_loop_gain_hz * loop_inertia
-    return kd / servo.speed_integral_time_s, kd
-
-
-def _apply_servo(spec: mujoco.MjSpec, params: RigParams) -> None:
-    """Screw stage and drive: gear, reflected inertia, friction, limits and the PI speed loop."""
-    screw, servo = params.screw, params.servo
-    kp, kd = speed_loop_gains(params)
     spec.joint("screw").damping = (screw.viscous_n_s_per_m, 0.0, 0.0)
     actuator = spec.actuator("servo")
     actuator.gear = (screw.gear_rad_per_m, 0.0, 0.0, 0.0, 0.0, 0.0)
     actuator.armature = servo.rotor_inertia_kg_m2 + screw.screw_inertia_kg_m2
+    if ideal_drive:
+        kv = IDEAL_DRIVE_DAMPING_N_S_PER_M / screw.gear_rad_per_m**2
+        actuator.set_to_velocity(kv=kv)
+        return
+    kp, kd = speed_loop_gains(params)
     actuator.set_to_dcmotor(
         motorconst=(servo.torque_constant_n_m_per_a, servo.torque_constant_n_m_per_a),
         resistance=servo.resistance_ohm,
+        inductance=(0.0, servo.torque_filter_s),
         saturation=(servo.peak_torque_n_m if math.isfinite(servo.peak_torque_n_m) else 0.0, 0.0, 0.0),
         cogging=(servo.cogging_torque_n_m, float(servo.cogging_cycles_per_rev), 0.0),
-        controller=(kp, 0.0, kd, 0.0, 0.0, servo.bus_voltage_v),
+        # The slew limiter interpolates the position reference (Rig.drive sets its rate).
+        controller=(kp, 0.0, kd, servo_max_speed_rad_s(params), 0.0, servo.bus_voltage_v),
         lugre=(
             servo.bristle_stiffness_n_m_per_rad,
             servo.bristle_damping_n_m_s_per_rad,
@@ -282,12 +461,12 @@ def _apply_servo(spec: mujoco.MjSpec, params: RigParams) -> None:
     )
 
 
-def _count_pad_contacts(model: mujoco.MjModel, height_joint: str) -> int:
-    """Contact points MuJoCo makes between foot and pad (a flat cylinder on a box makes several)."""
+def _count_pad_contacts(model: mujoco.MjModel, height_joint: str, thickness_m: float) -> int:
+    """Contact points MuJoCo makes between foot and pad (a flat cylinder on a plane makes several)."""
     data = mujoco.MjData(model)
     foot, pad = model.geom("foot").id, model.geom("pad").id
     counts = []
-    for depth in _PROBE_DEPTHS_M:
+    for depth in (1e-3, 0.5 * thickness_m, 0.999 * thickness_m):
         mujoco.mj_resetData(model, data)
         data.qpos[model.jnt_qposadr[model.joint(height_joint).id]] = -depth
         mujoco.mj_forward(model, data)
@@ -298,7 +477,7 @@ def _count_pad_contacts(model: mujoco.MjModel, height_joint: str) -> int:
 
 
 def _apply_pad_contact(spec: mujoco.MjSpec, params: RigParams, mass_kg: float, height_joint: str) -> int:
-    n_contacts = _count_pad_contacts(spec.compile(), height_joint)
+    n_contacts = _count_pad_contacts(spec.compile(), height_joint, params.pad.thickness_m)
     pad = spec.geom("pad")
     pad.priority = 1  # the pad's contact parameters decide the foot-pad contact
     solref, solimp = pad_contact_solref(
@@ -309,33 +488,51 @@ def _apply_pad_contact(spec: mujoco.MjSpec, params: RigParams, mass_kg: float, h
     return n_contacts
 
 
+def check_physics_step(physics_step_s: float) -> float:
+    """The physics step, validated against :data:`PHYSICS_STEP_RANGE_S`."""
+    low, high = PHYSICS_STEP_RANGE_S
+    step = validate.positive("physics_step_s", physics_step_s, "s")
+    if not low <= step <= high:
+        raise ValueError(f"physics_step_s must be in [{low:g}, {high:g}] s, got {physics_step_s!r}")
+    return step
+
+
 def build_spec(
-    params: RigParams, loads_kg: tuple[float, ...] = (), xml_file: str | Path | None = None
+    params: RigParams,
+    loads_kg: tuple[float, ...] = (),
+    xml_file: str | Path | None = None,
+    physics_step_s: float = PHYSICS_STEP_S,
+    ideal_drive: bool = False,
 ) -> tuple[mujoco.MjSpec, int]:
     """The rig's MjSpec with every value of ``params`` applied, and its foot-pad contact count.
 
     ``xml_file`` replaces the packaged ``scene.xml`` template; it must name the same elements.
     """
     loads_kg = tuple(loads_kg)
-    _validate_loads(loads_kg, params.lander.mass_kg)
+    validate_loads(loads_kg, params.lander.mass_kg)
+    physics_step_s = check_physics_step(physics_step_s)
     spec = mujoco.MjSpec.from_file(str(mjcf_dir() / "scene.xml" if xml_file is None else xml_file))
-    _apply_geometry_and_masses(spec, params)
+    _apply_geometry_and_masses(spec, params, physics_step_s)
     _add_loads(spec, loads_kg)
     _apply_flexible_unit(spec, params)
-    _apply_servo(spec, params)
+    _apply_servo(spec, params, ideal_drive)
     n_contacts = _apply_pad_contact(spec, params, params.lander.mass_kg + sum(loads_kg), "screw")
     home = spec.key("home")
-    home.ctrl = (float(home.qpos[0]) * params.screw.gear_rad_per_m, 0.0)
+    home.ctrl = (0.0,) if ideal_drive else (float(home.qpos[0]) * params.screw.gear_rad_per_m, 0.0)
     return spec, n_contacts
 
 
 def build_rig(
-    params: RigParams | None = None, loads_kg: tuple[float, ...] = (), xml_file: str | Path | None = None
+    params: RigParams | None = None,
+    loads_kg: tuple[float, ...] = (),
+    xml_file: str | Path | None = None,
+    physics_step_s: float = PHYSICS_STEP_S,
+    ideal_drive: bool = False,
 ) -> Rig:
     """Compile the rig for ``params`` (default: the paper's rig) with test weights ``loads_kg``."""
     params = RigParams() if params is None else params
-    spec, n_contacts = build_spec(params, loads_kg, xml_file)
-    return Rig(spec.compile(), params, tuple(float(m) for m in loads_kg), n_contacts)
+    spec, n_contacts = build_spec(params, loads_kg, xml_file, physics_step_s, ideal_drive)
+    return Rig(spec.compile(), params, tuple(float(m) for m in loads_kg), n_contacts, ideal_drive)
 
 
 @dataclass(frozen=True)
@@ -355,17 +552,18 @@ class PadTest:
         return self.params.lander.mass_kg
 
 
-def build_pad_test(params: RigParams | None = None, field_m_s2: float = 0.0) -> PadTest:
+def build_pad_test(
+    params: RigParams | None = None, field_m_s2: float = 0.0, physics_step_s: float = PHYSICS_STEP_S
+) -> PadTest:
     """The rig's lander and pad without support, QZS, balancer or servo, in a field of ``field_m_s2``.
 
     The floating support is fixed at touchdown, so the QZS joint becomes the lander's free height
     coordinate; spring, friction and guide limits are removed with the rest of the rig.
     """
     params = RigParams() if params is None else params
-    if not (math.isfinite(field_m_s2) and field_m_s2 >= 0):
-        raise ValueError(f"field must be a finite acceleration >= 0 m/s^2, got {field_m_s2!r}")
+    validate.non_negative("field", field_m_s2, "m/s^2")
     spec = mujoco.MjSpec.from_file(str(mjcf_dir() / "scene.xml"))
-    _apply_geometry_and_masses(spec, params)
+    _apply_geometry_and_masses(spec, params, physics_step_s)
     _add_loads(spec, ())
     spec.option.gravity = (0.0, 0.0, -field_m_s2)
     for sensor in ("encoder_pos", "encoder_vel"):

@@ -8,8 +8,6 @@ is the yardstick of :func:`microg_env.analysis.metrics.compute_metrics`.
 
 from __future__ import annotations
 
-import math
-
 import mujoco
 import numpy as np
 
@@ -21,17 +19,17 @@ from microg_env.sim.model import build_pad_test, pad_contact_solref
 
 def simulate_reference(
     scenario: Scenario,
-    params: RigParams | None = None,
-    control_period_s: float = 1e-3,
+    params: RigParams,
+    control_period_s: float,
+    physics_step_s: float,
     duration_s: float | None = None,
 ) -> Trajectory:
-    """Simulate the ideal landing of ``scenario`` for ``duration_s`` (default: the scenario's)."""
-    params = scenario.rig_params(RigParams() if params is None else params)
+    """Simulate the ideal landing of ``scenario`` with the lander, pad and gravity of ``params`` for
+    ``duration_s`` (default: the scenario's), sampled at ``control_period_s``."""
     duration_s = scenario.duration_s if duration_s is None else duration_s
-    frame_skip = math.ceil(control_period_s / params.timestep_s - 1e-9)
-    pad_test = build_pad_test(params)
+    frame_skip = round(control_period_s / physics_step_s)
+    pad_test = build_pad_test(params, physics_step_s=physics_step_s)
     model = pad_test.model
-    model.opt.timestep = control_period_s / frame_skip
     data = mujoco.MjData(model)
     lander, pad_geom = model.body("lander").id, model.geom("pad").id
     force_adr = int(model.sensor_adr[model.sensor("pad_force").id])

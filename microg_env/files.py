@@ -1,0 +1,132 @@
+"""Writing results: one atomic-write helper for files and one for folders, and the checks before them.
+
+Nothing is ever half-written: a file goes to a temporary name beside it and is renamed over the
+target; a folder (a report) is built in a staging folder and swapped in. Output paths are checked
+before any work is done (a missing folder, a directory or a special file where a file should go,
+a wrong suffix), so a long computation never ends in an unwritable path. Written files get the
+usual permissions (0666 less the umask), not those of a private temporary file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import stat
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+#: Marker written last into a staging folder: its presence means the folder is complete.
+_COMPLETE = ".complete"
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def check_output_file(path: str | Path, option: str, suffixes: tuple[str, ...]) -> Path:
+    """``path`` as a file this process may create or replace; ValueError naming ``option`` if not."""
+    text = str(path)
+    if not text.strip():
+        raise ValueError(f"{option}: the file name is empty")
+    path = Path(text)
+    if path.suffix.lower() not in suffixes:
+        raise ValueError(f"{option} {text!r}: the file name must end in {' or '.join(suffixes)}")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise ValueError(f"{option} {text!r}: folder {folder} does not exist")
+    if path.exists() or path.is_symlink():
+        mode = os.stat(path, follow_symlinks=False).st_mode
+        if not stat.S_ISREG(mode):
+            raise ValueError(f"{option} {text!r} exists and is not a regular file")
+    try:  # the one reliable test (root passes os.access on read-only file systems such as /proc)
+        handle, probe = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".probe", dir=folder)
+    except OSError as error:
+        raise ValueError(f"{option} {text!r}: folder {folder} is not writable ({error.strerror})") from None
+    os.close(handle)
+    os.unlink(probe)
+    return path
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write to; renamed over ``path`` when the block succeeds."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f"{path.suffix}.partial", dir=folder)
+    os.close(handle)
+    try:
+        yield Path(temporary)
+        os.chmod(temporary, 0o666 & ~_umask())
+        os.replace(temporary, path)
+    finally:
+        Path(temporary).unlink(missing_ok=True)
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically."""
+    with atomic_path(path) as temporary:
+        temporary.write_text(text, encoding="utf-8")
+
+
+def _staging_prefix(out: Path) -> str:
+    return f".{out.name}.staging-"
+
+
+def _retired_prefix(out: Path) -> str:
+    return f".{out.name}.old-"
+
+
+def recover_folder(out: Path) -> None:
+    """Finish or undo a folder swap a hard kill interrupted, and remove stale staging folders.
+
+    If ``out`` is missing, the newest complete staging folder is moved in (its swap had begun),
+    else the retired previous folder is put back. Every other staging or retired folder is removed.
+    """
+    parent = out.resolve().parent
+    if not parent.is_dir():
+        return
+    staging = sorted(
+        (p for p in parent.iterdir() if p.name.startswith(_staging_prefix(out)) and p.is_dir()),
+        key=lambda p: p.stat().st_mtime,
+    )
+    retired = [p for p in parent.iterdir() if p.name.startswith(_retired_prefix(out)) and p.is_dir()]
+    if not out.exists():
+        complete = [p for p in staging if (p / _COMPLETE).is_file()]
+        if complete:
+            os.replace(complete[-1], out)
+            (out / _COMPLETE).unlink()
+        elif retired:
+            os.replace(retired[0] / out.name if (retired[0] / out.name).is_dir() else retired[0], out)
+    for leftover in (*staging, *retired):
+        shutil.rmtree(leftover, ignore_errors=True)
+
+
+def replace_folder(out: Path, fill: Callable[[Path], None]) -> Path:
+    """Build a folder with ``fill(staging)`` and swap it in for ``out``, only once it is complete."""
+    out = Path(out)
+    recover_folder(out)
+    parent = out.resolve().parent
+    staging = Path(tempfile.mkdtemp(prefix=_staging_prefix(out), dir=parent))
+    try:
+        fill(staging)
+        mask = _umask()
+        for path in staging.iterdir():  # temporary files are private; the result is not
+            path.chmod(0o666 & ~mask)
+        staging.chmod(0o777 & ~mask)
+        (staging / _COMPLETE).touch()
+        if out.exists():
+            retired = Path(tempfile.mkdtemp(prefix=_retired_prefix(out), dir=parent))
+            os.replace(out, retired / out.name)
+            os.replace(staging, out)
+            shutil.rmtree(retired, ignore_errors=True)
+        else:
+            os.replace(staging, out)
+        (out / _COMPLETE).unlink()
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)
+    return out

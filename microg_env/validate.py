@@ -1,0 +1,96 @@
+"""The one validator: every number a user can pass is checked here, with an error naming it.
+
+Each function returns the value as a plain ``float`` (or ``int``) and raises ``ValueError`` with
+one line that names the argument, the bound it broke and the value it got. Booleans are not
+numbers here, NaN and infinities are never accepted, and NumPy scalars are.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+
+def _real(name: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    return number
+
+
+def _unit(unit: str) -> str:
+    return f" {unit}" if unit else ""
+
+
+def finite(name: str, value: object) -> float:
+    """Any finite number."""
+    return _real(name, value)
+
+
+def positive(name: str, value: object, unit: str = "", upper: float = math.inf, why: str = "") -> float:
+    """A number in (0, upper]; ``why`` names the reason for the upper bound."""
+    number = _real(name, value)
+    if not number > 0:
+        raise ValueError(f"{name} must be positive, got {value!r}")
+    if number > upper:
+        reason = f" ({why})" if why else ""
+        raise ValueError(f"{name} must be at most {upper:g}{_unit(unit)}{reason}, got {value!r}")
+    return number
+
+
+def non_negative(name: str, value: object, unit: str = "", upper: float = math.inf, why: str = "") -> float:
+    """A number in [0, upper]."""
+    number = _real(name, value)
+    if number < 0:
+        raise ValueError(f"{name} must be >= 0, got {value!r}")
+    if number > upper:
+        reason = f" ({why})" if why else ""
+        raise ValueError(f"{name} must be at most {upper:g}{_unit(unit)}{reason}, got {value!r}")
+    return number
+
+
+def at_least(name: str, value: object, lower: float, unit: str = "", why: str = "") -> float:
+    """A number >= lower."""
+    number = _real(name, value)
+    if number < lower:
+        reason = f" ({why})" if why else ""
+        raise ValueError(f"{name} must be at least {lower:g}{_unit(unit)}{reason}, got {value!r}")
+    return number
+
+
+def between(name: str, value: object, low: float, high: float, unit: str = "", high_open: bool = False) -> float:
+    """A number in [low, high] (or [low, high) with ``high_open``)."""
+    number = _real(name, value)
+    above = number >= high if high_open else number > high
+    if number < low or above:
+        bracket = ")" if high_open else "]"
+        raise ValueError(f"{name} must be in [{low:g}, {high:g}{bracket}{_unit(unit)}, got {value!r}")
+    return number
+
+
+def integer(name: str, value: object, low: int | None = None, high: int | None = None) -> int:
+    """An integer in [low, high] (either bound optional)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    number = int(value)
+    if (low is not None and number < low) or (high is not None and number > high):
+        low_text = "-inf" if low is None else str(low)
+        high_text = "inf" if high is None else str(high)
+        raise ValueError(f"{name} must be an integer in [{low_text}, {high_text}], got {value!r}")
+    return number
+
+
+def choice(name: str, value: object, options: tuple) -> object:
+    """One of ``options``."""
+    if value not in options:
+        raise ValueError(f"{name} must be one of {', '.join(map(repr, options))}, got {value!r}")
+    return value
+
+
+def instance(name: str, value: object, kind: type) -> object:
+    """An instance of ``kind``."""
+    if not isinstance(value, kind):
+        raise ValueError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
+    return value
