@@ -15,19 +15,13 @@ from microg_env.sim.model import PadTest, Rig, build_pad_test, build_rig
 
 __version__ = "0.2.0"
 
-#: 30 s (Section 3.2) at the default 1 kHz control rate.
-MAX_EPISODE_STEPS = 30_000
-
 if "MicroGravityLanding-v0" not in registry:
-    register(
-        id="MicroGravityLanding-v0",
-        entry_point="microg_env.envs.landing:MicroGravityLandingEnv",
-        max_episode_steps=MAX_EPISODE_STEPS,
-    )
+    # No max_episode_steps: the environment truncates itself at its scenario's duration, whatever
+    # the control period (a step count fixed here would cut a 100 us episode off at 3 s).
+    register(id="MicroGravityLanding-v0", entry_point="microg_env.envs.landing:MicroGravityLandingEnv")
 
 __all__ = [
     "CONDITIONS",
-    "MAX_EPISODE_STEPS",
     "DomainRandomization",
     "Imperfections",
     "LoadStep",

@@ -34,7 +34,40 @@ class UsageError(Exception):
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # argparse would print the whole usage first
-        raise UsageError(f"{self.prog}: error: {message}")
+        raise UsageError(f"{self.prog}: error: {_one_line(message)}")
+
+
+def _one_line(message: str) -> str:
+    """A message on one line (a value with a newline in it must not split the error)."""
+    return message.replace("\r", "\\r").replace("\n", "\\n")
+
+
+#: Words in the errors of the model and the environment, and the options of ``microg run`` that
+#: set them: an error is prefixed with the first option whose word it contains.
+RUN_OPTIONS = (
+    ("descent_height_m", "--height"),
+    ("Scenario.loads", "--load"),
+    ("LoadStep", "--load"),
+    ("loads totalling", "--load"),
+    ("duration", "--duration"),
+    ("control_period_s", "--control-period"),
+    ("physics_step_s", "--physics-step"),
+    ("stiffness", "--stiffness"),
+    ("damping", "--damping"),
+)
+#: The same for ``microg drop``: its errors may name several options.
+DROP_OPTIONS = (("mass", "--mass"), ("stiffness", "--stiffness"), ("damping", "--damping"), ("velocity", "--velocity"))
+
+
+def _naming(error: ValueError, options: tuple[tuple[str, str], ...], every: bool = False) -> ValueError:
+    """``error`` prefixed with the option(s) whose word it contains."""
+    message = str(error)
+    if message.startswith("--"):  # already named
+        return error
+    named = [option for word, option in options if word in message]
+    if not every:
+        named = named[:1]
+    return ValueError(f"{', '.join(dict.fromkeys(named))}: {message}" if named else message)
 
 
 def _number(low: float, high: float, unit: str, low_open: bool = True) -> Callable[[str], float]:
@@ -66,7 +99,9 @@ def _seed(text: str) -> int:
 
 def _load_step(text: str) -> LoadStep:
     """KG[@HEIGHT_MM]: a weight placed at t = 0, or when the foot is HEIGHT_MM above the pad."""
-    mass, _, height = text.partition("@")
+    mass, at, height = text.partition("@")
+    if at and not height.strip():
+        raise argparse.ArgumentTypeError(f"bad load {text!r}: no height after '@'")
     try:
         return LoadStep(float(mass), float(height) * 1e-3 if height else None)
     except ValueError as error:
@@ -103,10 +138,13 @@ def _pad(args: argparse.Namespace):
     from microg_env.paper.calibration import pad_params
 
     pad = pad_params(args.pad)
-    if args.stiffness is not None:
-        pad = replace(pad, stiffness_n_per_m=args.stiffness)
-    if args.damping is not None:
-        pad = replace(pad, damping_n_s_per_m=args.damping)
+    try:
+        if args.stiffness is not None:
+            pad = replace(pad, stiffness_n_per_m=args.stiffness)
+        if args.damping is not None:
+            pad = replace(pad, damping_n_s_per_m=args.damping)
+    except ValueError as error:
+        raise _naming(error, RUN_OPTIONS) from None
     return pad
 
 
@@ -114,7 +152,10 @@ def _cmd_drop(args: argparse.Namespace) -> int:
     from microg_env.sim.drop import drop_test
 
     pad = _pad(args)
-    report = drop_test(args.mass, pad.stiffness_n_per_m, pad.damping_n_s_per_m, args.velocity)
+    try:
+        report = drop_test(args.mass, pad.stiffness_n_per_m, pad.damping_n_s_per_m, args.velocity)
+    except ValueError as error:
+        raise _naming(error, DROP_OPTIONS, every=True) from None
     if args.json:
         print(json.dumps(report.as_dict(), indent=2))
     else:
@@ -125,11 +166,17 @@ def _cmd_drop(args: argparse.Namespace) -> int:
 def _cmd_export_mjcf(args: argparse.Namespace) -> int:
     from microg_env.files import check_output_file, write_text
     from microg_env.params import RigParams
+    from microg_env.sim.limits import check_pad_model
     from microg_env.sim.model import build_spec
 
     output = check_output_file(args.output, "FILE", (".xml",))
     params = replace(RigParams(), pad=_pad(args))
-    spec, _ = build_spec(params, tuple(args.load), physics_step_s=args.physics_step * 1e-6)
+    step = args.physics_step * 1e-6
+    try:
+        check_pad_model(params.pad, params.lander.mass_kg + sum(args.load), step, "export-mjcf")
+    except ValueError as error:
+        raise _naming(error, RUN_OPTIONS) from None
+    spec, _ = build_spec(params, tuple(args.load), physics_step_s=step)
     spec.compile()
     write_text(output, spec.to_xml())
     print(f"wrote {output}")
@@ -211,13 +258,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
         figure_class()  # fail now, not after the run, if matplotlib is missing
     period, step = args.control_period * 1e-6, args.physics_step * 1e-6
-    env = MicroGravityLandingEnv(
-        scenario=_scenario(args),
-        control_period_s=period,
-        physics_step_s=step,
-        imperfections=Imperfections.none() if args.ideal else Imperfections(),
-        params=replace(RigParams(), pad=_pad(args)),
-    )
+    try:
+        env = MicroGravityLandingEnv(
+            scenario=_scenario(args),
+            control_period_s=period,
+            physics_step_s=step,
+            imperfections=Imperfections.none() if args.ideal else Imperfections(),
+            params=replace(RigParams(), pad=_pad(args)),
+        )
+    except ValueError as error:
+        raise _naming(error, RUN_OPTIONS) from None
     controller = make_controller(args.controller, period)
     trajectory, reference, metrics = run_with_metrics(env, controller, seed=args.seed)
     if args.json:
@@ -270,9 +320,16 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     from microg_env.analysis.plots import figure_class
     from microg_env.paper import report, reproduction
 
+    if not args.out.strip():
+        raise ValueError("--out: the folder name is empty")
     out = Path(args.out)
     if args.out == DEFAULT_REPORT_DIR:
-        out.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise ValueError(
+                f"--out {args.out!r}: cannot create folder {str(out.parent)!r} ({error.strerror})"
+            ) from None
     report.check_output(out)
     try:
         from tqdm import tqdm
@@ -285,13 +342,36 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         unit="step",
         unit_scale=True,
         desc="reproduce",
-        file=sys.stderr,
+        file=_ProgressStream(sys.stderr),
         disable=args.quiet,
     ) as bar:
         runs = reproduction.compute(duration_s=duration, seed=args.seed, progress=bar.update)
     report.write(runs, out)
     print(f"wrote {out / 'report.md'}")
     return 0
+
+
+class _ProgressStream:
+    """A progress bar's stream that goes quiet when its reader goes away (``2>&1 | head``): the
+    work and its results are not lost to a closed pipe."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+        self.open = True
+
+    def write(self, text: str) -> None:
+        if self.open:
+            try:
+                self.stream.write(text)
+            except BrokenPipeError:
+                self.open = False
+
+    def flush(self) -> None:
+        if self.open:
+            try:
+                self.stream.flush()
+            except BrokenPipeError:
+                self.open = False
 
 
 def _add_pad_options(parser: argparse.ArgumentParser) -> None:
@@ -445,10 +525,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
         return args.handler(args)
     except UsageError as error:
-        print(error, file=sys.stderr)
+        print(_one_line(str(error)), file=sys.stderr)
         return 2
     except ValueError as error:
-        print(f"microg: error: {error}", file=sys.stderr)
+        print(f"microg: error: {_one_line(str(error))}", file=sys.stderr)
         return 2
     except BrokenPipeError:
         # The reader went away (| head): stop quietly, as Python's documentation recommends.

@@ -27,25 +27,51 @@ def _umask() -> int:
     return mask
 
 
+#: Characters the temporary and staging names add to an output's name.
+_TEMPORARY_NAME_EXTRA = 32
+
+
+def check_name_length(path: Path, option: str) -> None:
+    """Reject a name with control characters, or too long for its file system once a temporary
+    prefix and suffix are added."""
+    if any(ord(character) < 32 for character in str(path)):
+        raise ValueError(f"{option} {str(path)!r}: the name contains a control character")
+    folder = path.parent if str(path.parent) else Path(".")
+    try:
+        longest = os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        longest = 255
+    if len(path.name.encode()) + _TEMPORARY_NAME_EXTRA > longest:
+        raise ValueError(
+            f"{option} {str(path)!r}: the name is too long ({len(path.name)} characters; "
+            f"at most {longest - _TEMPORARY_NAME_EXTRA})"
+        )
+
+
 def check_output_file(path: str | Path, option: str, suffixes: tuple[str, ...]) -> Path:
     """``path`` as a file this process may create or replace; ValueError naming ``option`` if not."""
     text = str(path)
     if not text.strip():
         raise ValueError(f"{option}: the file name is empty")
+    if text.endswith(("/", os.sep)):
+        raise ValueError(f"{option} {text!r} names a folder, not a file")
     path = Path(text)
     if path.suffix.lower() not in suffixes:
         raise ValueError(f"{option} {text!r}: the file name must end in {' or '.join(suffixes)}")
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
-        raise ValueError(f"{option} {text!r}: folder {folder} does not exist")
+        raise ValueError(f"{option} {text!r}: folder {str(folder)!r} does not exist")
+    check_name_length(path, option)
     if path.exists() or path.is_symlink():
         mode = os.stat(path, follow_symlinks=False).st_mode
         if not stat.S_ISREG(mode):
             raise ValueError(f"{option} {text!r} exists and is not a regular file")
+        if not mode & 0o222:
+            raise ValueError(f"{option} {text!r} exists and is read-only")
     try:  # the one reliable test (root passes os.access on read-only file systems such as /proc)
         handle, probe = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".probe", dir=folder)
     except OSError as error:
-        raise ValueError(f"{option} {text!r}: folder {folder} is not writable ({error.strerror})") from None
+        raise ValueError(f"{option} {text!r}: folder {str(folder)!r} is not writable ({error.strerror})") from None
     os.close(handle)
     os.unlink(probe)
     return path
@@ -98,9 +124,10 @@ def recover_folder(out: Path) -> None:
         complete = [p for p in staging if (p / _COMPLETE).is_file()]
         if complete:
             os.replace(complete[-1], out)
-            (out / _COMPLETE).unlink()
         elif retired:
             os.replace(retired[0] / out.name if (retired[0] / out.name).is_dir() else retired[0], out)
+    if out.is_dir():  # swapped in, killed before its marker was removed
+        (out / _COMPLETE).unlink(missing_ok=True)
     for leftover in (*staging, *retired):
         shutil.rmtree(leftover, ignore_errors=True)
 

@@ -98,7 +98,8 @@ class DomainRandomization:
         limit = lightest / 99.0
         if most_load > limit:
             raise ValueError(
-                f"DomainRandomization.lander_mass {self.lander_mass!r} with load_mass {self.load_mass!r} can draw "
+                f"domain_randomization: DomainRandomization.lander_mass {self.lander_mass!r} with load_mass "
+                f"{self.load_mass!r} can draw "
                 f"{most_load:.3g} kg of test weights on a {lightest:.3g} kg lander, above the {limit:.3g} kg "
                 f"that keeps the field within the rig's 1e-2 g range"
             )
@@ -113,7 +114,12 @@ class DomainRandomization:
                     )
                     total = mass + most_load
                     speed = scenario.impact_speed_m_s(mass, g) * math.sqrt(1.0 + self.load_mass)
-                    check_pad(drawn, total, speed, most_load * g, physics_step_s, "DomainRandomization's extreme draw")
+                    try:
+                        check_pad(
+                            replace(params, pad=drawn), total, speed, most_load * g, physics_step_s, "extreme draw"
+                        )
+                    except ValueError as error:
+                        raise ValueError(f"domain_randomization: {error}") from None
 
     def sample(
         self, params: RigParams, loads_kg: tuple[float, ...], rng: np.random.Generator

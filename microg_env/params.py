@@ -56,14 +56,70 @@ def flat_punch_radius_m(stiffness_n_per_m: float, young_modulus_pa: float, poiss
     return stiffness_n_per_m * (1.0 - poisson_ratio**2) / (2.0 * young_modulus_pa)
 
 
-def _positive(obj: object, *names: str) -> None:
-    for name in names:
-        validate.positive(f"{type(obj).__name__}.{name}", getattr(obj, name))
+#: Plausible range of every numeric parameter, (low, high, unit), inclusive: wide enough for any
+#: rig of this kind, narrow enough that the model stays finite and integrable. A value outside is
+#: rejected with its name.
+RANGES: dict[str, tuple[float, float, str]] = {
+    "PadParams.stiffness_n_per_m": (1.0, 1e9, "N/m"),
+    "PadParams.damping_n_s_per_m": (1e-3, 1e7, "N s/m"),
+    "PadParams.young_modulus_pa": (1e2, 1e12, "Pa"),
+    "PadParams.half_width_m": (0.01, 10.0, "m"),
+    "PadParams.thickness_m": (1e-3, 1.0, "m"),
+    "LanderParams.mass_kg": (1.0, LOAD_CAPACITY_KG, "kg"),
+    "LanderParams.foot_radius_m": (1e-3, 1.0, "m"),
+    "LanderParams.foot_height_m": (1e-3, 1.0, "m"),
+    "QZSParams.stroke_m": (1e-3, 1.0, "m"),
+    "QZSParams.guide_friction_n": (0.0, 100.0, "N"),
+    "QZSParams.guide_static_friction_n": (0.0, 100.0, "N"),
+    "QZSParams.guide_stribeck_speed_m_s": (1e-6, 1.0, "m/s"),
+    "QZSParams.guide_bristle_stiffness_n_per_m": (1.0, 1e9, "N/m"),
+    "QZSParams.guide_bristle_damping_n_s_per_m": (0.0, 1e6, "N s/m"),
+    "QZSParams.guide_damping_n_s_per_m": (0.0, 1e6, "N s/m"),
+    "BalancerParams.piston_area_m2": (1e-6, 1.0, "m^2"),
+    "BalancerParams.gas_volume_m3": (1e-5, 10.0, "m^3"),
+    "BalancerParams.polytropic_index": (1.0, 1.67, ""),
+    "ScrewStageParams.lead_m": (1e-3, 1.0, "m"),
+    "ScrewStageParams.belt_ratio": (0.01, 100.0, ""),
+    "ScrewStageParams.stroke_m": (0.01, 10.0, "m"),
+    "ScrewStageParams.max_speed_m_per_s": (1e-3, 10.0, "m/s"),
+    "ScrewStageParams.travel_below_touchdown_m": (0.0, 10.0, "m"),
+    "ScrewStageParams.support_mass_kg": (0.1, 1e4, "kg"),
+    "ScrewStageParams.screw_inertia_kg_m2": (1e-6, 10.0, "kg m^2"),
+    "ScrewStageParams.viscous_n_s_per_m": (0.0, 1e6, "N s/m"),
+    "ServoParams.rated_torque_n_m": (0.01, 1e4, "N m"),
+    "ServoParams.rated_speed_rpm": (1.0, 1e5, "rpm"),
+    "ServoParams.rated_power_w": (1.0, 1e7, "W"),
+    "ServoParams.rotor_inertia_kg_m2": (1e-7, 10.0, "kg m^2"),
+    "ServoParams.torque_constant_n_m_per_a": (1e-3, 100.0, "N m/A"),
+    "ServoParams.resistance_ohm": (1e-4, 100.0, "ohm"),
+    "ServoParams.bus_voltage_v": (1.0, 1e4, "V"),
+    "ServoParams.speed_loop_gain_hz": (0.1, 1e4, "Hz"),
+    "ServoParams.speed_integral_time_s": (1e-5, 10.0, "s"),
+    "ServoParams.torque_filter_s": (0.0, 0.1, "s"),
+    "ServoParams.cogging_torque_n_m": (0.0, 1e3, "N m"),
+    "ServoParams.coulomb_torque_n_m": (0.0, 1e3, "N m"),
+    "ServoParams.static_torque_n_m": (0.0, 1e3, "N m"),
+    "ServoParams.stribeck_speed_rad_s": (1e-6, 1e4, "rad/s"),
+    "ServoParams.bristle_stiffness_n_m_per_rad": (0.0, 1e9, "N m/rad"),
+    "ServoParams.bristle_damping_n_m_s_per_rad": (0.0, 1e6, "N m s/rad"),
+    "SensorParams.ruler_resolution_m": (1e-12, 1e-3, "m"),
+    "SensorParams.ruler_noise_m": (0.0, 1e-3, "m"),
+    "SensorParams.accelerometer_noise_density_m_s2_per_sqrt_hz": (0.0, 1.0, "m/s^2/sqrt(Hz)"),
+    "SensorParams.force_noise_n": (0.0, 1e3, "N"),
+    "BalancerDriftParams.gas_temperature_k": (1.0, 1e3, "K"),
+    "BalancerDriftParams.max_temperature_rate_k_per_s": (0.0, 0.1, "K/s"),
+    "RigParams.gravity_m_s2": (0.1, 100.0, "m/s^2"),
+}
 
 
-def _non_negative(obj: object, *names: str) -> None:
-    for name in names:
-        validate.non_negative(f"{type(obj).__name__}.{name}", getattr(obj, name))
+def _check_ranges(obj: object) -> None:
+    """Every field of ``obj`` with an entry in RANGES, within it."""
+    kind = type(obj).__name__
+    for f in dataclasses.fields(obj):
+        key = f"{kind}.{f.name}"
+        if key in RANGES:
+            low, high, unit = RANGES[key]
+            validate.between(key, getattr(obj, f.name), low, high, unit)
 
 
 @dataclass(frozen=True)
@@ -85,7 +141,7 @@ class PadParams:
     impedance: float = 1.0e-4
 
     def __post_init__(self) -> None:
-        _positive(self, "stiffness_n_per_m", "damping_n_s_per_m", "young_modulus_pa", "half_width_m", "thickness_m")
+        _check_ranges(self)
         validate.between("PadParams.poisson_ratio", self.poisson_ratio, 0.0, 0.5, high_open=True)
         validate.between("PadParams.impedance", self.impedance, 1.0e-4, 0.5, high_open=True)
 
@@ -101,10 +157,7 @@ class LanderParams:
     foot_height_m: float = 0.05  # assumption: a 50 mm thick foot plate
 
     def __post_init__(self) -> None:
-        _positive(self, "foot_radius_m", "foot_height_m")
-        validate.positive(
-            "LanderParams.mass_kg", self.mass_kg, "kg", LOAD_CAPACITY_KG, "the rig's load capacity, Section 4.1"
-        )
+        _check_ranges(self)  # the mass at most the rig's 620 kg capacity (Section 4.1)
 
 
 @dataclass(frozen=True)
@@ -156,12 +209,12 @@ class QZSParams:
 
     def __post_init__(self) -> None:
         stiffness = validate.finite("QZSParams.residual_stiffness_n_per_m", self.residual_stiffness_n_per_m)
-        if stiffness == 0.0:
-            raise ValueError("QZSParams.residual_stiffness_n_per_m must be non-zero (Eq. 17 gives 35.51 N/mm)")
-        _positive(self, "stroke_m")
-        _non_negative(self, "guide_friction_n", "guide_static_friction_n", "guide_damping_n_s_per_m")
-        _positive(self, "guide_stribeck_speed_m_s", "guide_bristle_stiffness_n_per_m")
-        _non_negative(self, "guide_bristle_damping_n_s_per_m")
+        if not 1.0 <= abs(stiffness) <= 1e8:
+            raise ValueError(
+                f"QZSParams.residual_stiffness_n_per_m must be, in magnitude, in [1, 1e8] N/m "
+                f"(Eq. 17 gives 35.51 N/mm), got {self.residual_stiffness_n_per_m!r}"
+            )
+        _check_ranges(self)
         if self.guide_static_friction_n < self.guide_friction_n:
             raise ValueError(
                 f"QZSParams.guide_static_friction_n {self.guide_static_friction_n!r} is below the Coulomb friction "
@@ -197,7 +250,7 @@ class BalancerParams:
 
     def __post_init__(self) -> None:
         validate.choice("BalancerParams.placement", self.placement, BALANCER_PLACEMENTS)
-        _positive(self, "piston_area_m2", "gas_volume_m3", "polytropic_index")
+        _check_ranges(self)
 
     def stiffness_n_per_m(self, force_n: float) -> float:
         """Gas-spring stiffness k = n F A / V at balancing force F."""
@@ -223,9 +276,7 @@ class ScrewStageParams:
     viscous_n_s_per_m: float = 200.0
 
     def __post_init__(self) -> None:
-        _positive(self, "lead_m", "belt_ratio", "stroke_m", "max_speed_m_per_s", "support_mass_kg")
-        _positive(self, "screw_inertia_kg_m2")
-        _non_negative(self, "travel_below_touchdown_m", "viscous_n_s_per_m")
+        _check_ranges(self)
         if self.travel_below_touchdown_m >= self.stroke_m:
             raise ValueError(
                 f"ScrewStageParams.travel_below_touchdown_m {self.travel_below_touchdown_m!r} "
@@ -284,14 +335,10 @@ class ServoParams:
     bristle_damping_n_m_s_per_rad: float = 10.0
 
     def __post_init__(self) -> None:
-        _positive(self, "rated_torque_n_m", "rated_speed_rpm", "rated_power_w", "rotor_inertia_kg_m2")
-        _positive(self, "torque_constant_n_m_per_a", "resistance_ohm", "bus_voltage_v", "speed_integral_time_s")
-        validate.positive("ServoParams.speed_loop_gain_hz", self.speed_loop_gain_hz, "Hz")
-        _non_negative(self, "torque_filter_s", "cogging_torque_n_m", "coulomb_torque_n_m", "static_torque_n_m")
-        _non_negative(self, "stribeck_speed_rad_s", "bristle_stiffness_n_m_per_rad", "bristle_damping_n_m_s_per_rad")
-        validate.integer("ServoParams.cogging_cycles_per_rev", self.cogging_cycles_per_rev, 1)
+        _check_ranges(self)
+        validate.integer("ServoParams.cogging_cycles_per_rev", self.cogging_cycles_per_rev, 1, 1000)
         if self.peak_torque_n_m != math.inf:  # inf: no limit
-            validate.positive("ServoParams.peak_torque_n_m", self.peak_torque_n_m, "N m")
+            validate.positive("ServoParams.peak_torque_n_m", self.peak_torque_n_m, "N m", 1e5)
         if self.peak_torque_n_m < self.rated_torque_n_m:
             raise ValueError(
                 f"ServoParams.peak_torque_n_m {self.peak_torque_n_m!r} is below the rated torque "
@@ -320,9 +367,8 @@ class SensorParams:
     force_noise_n: float = 0.1
 
     def __post_init__(self) -> None:
-        _positive(self, "ruler_resolution_m")
-        validate.integer("SensorParams.encoder_counts_per_rev", self.encoder_counts_per_rev, 1)
-        _non_negative(self, "ruler_noise_m", "accelerometer_noise_density_m_s2_per_sqrt_hz", "force_noise_n")
+        _check_ranges(self)
+        validate.integer("SensorParams.encoder_counts_per_rev", self.encoder_counts_per_rev, 1, 2**40)
 
 
 @dataclass(frozen=True)
@@ -337,8 +383,7 @@ class BalancerDriftParams:
     max_temperature_rate_k_per_s: float = 0.5 / 3600.0
 
     def __post_init__(self) -> None:
-        _positive(self, "gas_temperature_k")
-        _non_negative(self, "max_temperature_rate_k_per_s")
+        _check_ranges(self)
 
 
 @dataclass(frozen=True)
@@ -356,7 +401,7 @@ class RigParams:
     gravity_m_s2: float = GRAVITY_M_S2
 
     def __post_init__(self) -> None:
-        validate.positive("RigParams.gravity_m_s2", self.gravity_m_s2, "m/s^2")
+        _check_ranges(self)
         for f in dataclasses.fields(self):
             if f.name != "gravity_m_s2":  # each part's default factory is its class
                 validate.instance(f"RigParams.{f.name}", getattr(self, f.name), f.default_factory)
@@ -378,6 +423,7 @@ def parameter_paths(params: RigParams | None = None) -> dict[str, object]:
 
 def with_overrides(params: RigParams, overrides: Mapping[str, object]) -> RigParams:
     """``params`` with the values at the given dotted paths replaced (validated as usual)."""
+    validate.instance("overrides", overrides, Mapping)
     known = parameter_paths(params)
     for path, value in overrides.items():
         if path not in known:

@@ -148,6 +148,4 @@ CONDITIONS: dict[int, Scenario] = {
 
 def condition(number: int) -> Scenario:
     """The paper's condition 1, 2 or 3."""
-    if isinstance(number, bool) or number not in CONDITIONS:
-        raise ValueError(f"condition must be 1, 2 or 3, got {number!r}")
-    return CONDITIONS[number]
+    return CONDITIONS[validate.integer("condition", number, 1, len(CONDITIONS))]

@@ -75,6 +75,8 @@ NUMERIC_OPTIONS = {
     ("reproduce", "--seed"): "seed",
     ("export-mjcf /tmp/never-written.xml", "--load"): "load",
     ("export-mjcf /tmp/never-written.xml", "--physics-step"): "physics",
+    ("export-mjcf /tmp/never-written.xml", "--stiffness"): "stiffness",
+    ("export-mjcf /tmp/never-written.xml", "--damping"): "damping",
 }
 #: Negative, zero, NaN, infinities, huge, tiny, empty, wrong type.
 BAD_NUMBERS = ["-1", "0", "nan", "inf", "-inf", "1e300", "1e-300", "", "ten", "0x10", "1,5"]
@@ -85,10 +87,31 @@ CHOICE_OPTIONS = {
     ("drop", "--pad"): ["foam"],
     ("calibrate", "--source"): ["guess"],
 }
+LONG = "x" * 230  # with a temporary name's prefix and suffix, over the usual 255-byte limit
 PATH_OPTIONS = {
-    ("run", "--plot"): ["", "myplot", "{dir}", "/nonexistent-folder/run.png", "/proc/run.png"],
-    ("reproduce", "--out"): ["", ".", "{file}", "/nonexistent-folder/reproduction"],
-    ("export-mjcf",): ["", "{dir}", "rig.txt", "/nonexistent-folder/rig.xml", "/dev/stdout"],
+    ("run", "--plot"): [
+        "",
+        "myplot",
+        "{dir}",
+        "/nonexistent-folder/run.png",
+        "/proc/run.png",
+        f"{LONG}.png",
+        "{readonly}.png",
+        "{dangling}.png",
+    ],
+    ("reproduce", "--out"): [
+        "",
+        ".",
+        "..",
+        "nonexist/..",
+        "{file}",
+        "/nonexistent-folder/reproduction",
+        LONG,
+        "{dangling}",
+        "{dirlink}",
+        "new\nline",
+    ],
+    ("export-mjcf",): ["", "{dir}", "rig.txt", "rig.xml/", "/nonexistent-folder/rig.xml", "/dev/stdout", f"{LONG}.xml"],
 }
 
 
@@ -120,9 +143,17 @@ def _cases():
     yield ["run", "--stiffness", "10"], "stiffness"
     yield ["run", "--damping", "5000"], "damping"
     yield ["run", "--duration", "600", "--control-period", "100"], "steps"
-    yield ["drop", "--mass", "700"], "mass"
+    yield ["drop", "--mass", "700"], "--mass"
     yield ["drop", "--velocity", "0.32"], "thickness"
-    yield ["drop", "--mass", "1e-6"], "mass"
+    yield ["drop", "--mass", "1e-6"], "--mass"
+    yield ["drop", "--mass", "1e-200", "--stiffness", "1e-200"], "--stiffness"
+    yield ["run", "--height", "5000"], "--height"
+    yield ["run", "--load", "7"], "--load"
+    yield ["run", "--load", "0.05@"], "--load"
+    yield ["run", "--load", "0.05@25"], "--load"
+    yield ["run", "--stiffness", "165", "--damping", "20"], "travel below touchdown"  # the screw's reach
+    yield ["export-mjcf", "rig.xml", "--stiffness", "1e9"], "--stiffness"
+    yield ["new\nline"], "new"
 
 
 @pytest.mark.parametrize(("args", "word"), list(_cases()), ids=lambda v: " ".join(v) if isinstance(v, list) else v)
@@ -131,7 +162,15 @@ def test_bad_input_is_one_line_naming_the_option_exit_2_and_writes_nothing(args,
     folder.mkdir()
     (folder / "existing-dir").mkdir()
     (folder / "existing-file").write_text("keep")
-    args = [a.replace("{dir}", "existing-dir").replace("{file}", "existing-file") for a in args]
+    (folder / "read-only.png").write_text("keep")
+    (folder / "read-only.png").chmod(0o444)
+    (folder / "dangling.png").symlink_to(folder / "nowhere.png")
+    (folder / "dangling").symlink_to(folder / "nowhere")
+    (folder / "dir-link").symlink_to(folder / "existing-dir")
+    places = {"{dir}": "existing-dir", "{file}": "existing-file", "{readonly}": "read-only"}
+    places |= {"{dangling}": "dangling", "{dirlink}": "dir-link"}
+    for key, name in places.items():
+        args = [a.replace(key, name) for a in args]
     before = sorted(p.name for p in folder.iterdir())
     start = time.perf_counter()
     result = _run(*args, cwd=folder)
@@ -143,7 +182,9 @@ def test_bad_input_is_one_line_naming_the_option_exit_2_and_writes_nothing(args,
     assert "Traceback" not in result.stderr
     assert result.stdout == ""
     assert sorted(p.name for p in folder.iterdir()) == before
+    assert sorted(p.name for p in (folder / "existing-dir").iterdir()) == []
     assert (folder / "existing-file").read_text() == "keep"
+    assert (folder / "read-only.png").read_text() == "keep"
     assert not Path("/tmp/never-written.xml").exists()
 
 
@@ -225,3 +266,26 @@ def test_output_piped_into_a_closed_reader_leaves_no_traceback(tmp_path):
     command = f"{sys.executable} -m microg_env.cli drop 2>{errors} | true"
     subprocess.run(command, shell=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, check=False)
     assert "Traceback" not in errors.read_text()
+
+
+def test_reproduce_writes_its_report_when_its_progress_reader_goes_away(tmp_path):
+    """`microg reproduce 2>&1 | head`: the progress bar's reader closes; the report is still written."""
+    out = tmp_path / "report"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "microg_env.cli", "reproduce", "--duration", "0.2", "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+    )
+    process.stderr.close()
+    process.wait(timeout=300)
+    assert (out / "report.md").is_file()
+
+
+def test_a_results_file_in_the_way_of_the_default_report_folder(tmp_path):
+    (tmp_path / "results").write_text("not a folder")
+    result = _run("reproduce", "--duration", "1", "--quiet", cwd=tmp_path)
+    assert result.returncode == 2
+    assert "--out" in result.stderr
+    assert "Traceback" not in result.stderr

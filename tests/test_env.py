@@ -39,6 +39,7 @@ def _steps(env: gym.Env, steps: int, action: float = -0.01) -> np.ndarray:
 def test_registered_and_made_by_id():
     env = gym.make(ENV_ID)
     assert isinstance(env.unwrapped, MicroGravityLandingEnv)
+    assert env.spec.max_episode_steps is None  # the env truncates itself at its scenario's duration
     assert env.action_space == gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
     assert env.observation_space.shape == (len(OBSERVATION_SCALES),)
 
@@ -208,7 +209,19 @@ def test_out_of_range_actions_are_clipped():
 
 
 @pytest.mark.parametrize(
-    "action", [np.array([np.nan]), np.array([np.inf]), np.array([0.1, 0.2]), np.array([[0.1]]), 0.3, "up", None]
+    "action",
+    [
+        np.array([np.nan]),
+        np.array([np.inf]),
+        np.array([0.1, 0.2]),
+        np.array([[0.1]]),
+        0.3,
+        "up",
+        None,
+        np.array([True]),
+        np.array(["0.5"]),
+        np.array([0.5 + 0j]),
+    ],
 )
 def test_bad_actions_raise(action):
     env = MicroGravityLandingEnv(condition=1)
@@ -230,6 +243,11 @@ def test_bad_actions_raise(action):
         ({"physics_step_s": 1e-9}, "physics_step_s"),
         ({"physics_step_s": 2e-3}, "physics_step_s"),
         ({"compensation_scale": -1.0}, "compensation_scale"),
+        ({"compensation_scale": 1e-200}, "compensation_scale"),
+        ({"condition": np.array(3)}, "condition"),
+        ({"condition": [3]}, "condition"),
+        ({"camera_name": ["side"]}, "camera_name"),
+        ({"xml_file": "/etc/hostname"}, "xml_file"),
         ({"reset_noise_scale": 0.3}, "reset_noise_scale"),
         ({"reset_noise_scale": -0.01}, "reset_noise_scale"),
         ({"render_mode": "ascii"}, "render_mode"),
@@ -305,7 +323,7 @@ def test_impossible_randomisation_is_rejected_at_construction():
     on some seeds and leave the environment half-updated."""
     with pytest.raises(ValueError, match="lander_mass"):
         MicroGravityLandingEnv(condition=1, domain_randomization=DomainRandomization(lander_mass=0.99))
-    with pytest.raises(ValueError, match="thickness"):  # a 47 N/m pad would bottom out
+    with pytest.raises(ValueError, match="domain_randomization: pad stiffness"):  # a 47 N/m pad sinks 191 mm
         MicroGravityLandingEnv(condition=1, domain_randomization=DomainRandomization(pad_stiffness=0.99))
 
 
@@ -381,3 +399,49 @@ def test_human_render_without_a_display_is_a_clear_error_not_an_abort():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=False)
     assert result.returncode == 1  # a Python exception, not SIGABRT (-6)
     assert "render_mode='human' needs a display" in result.stderr
+
+
+def test_a_long_episode_made_by_id_runs_to_its_scenario_duration():
+    """Registered with max_episode_steps=30000, gym.make cut 100 us episodes off at 3 s."""
+    scenario = Scenario("long", (LoadStep(0.49),), descent_height_m=0.09, duration_s=3.2)
+    env = gym.make(ENV_ID, scenario=scenario, control_period_s=1e-4)
+    from microg_env.analysis.evaluate import run_episode
+    from microg_env.controllers.pid import make_controller
+
+    trajectory = run_episode(env, make_controller("pid", 1e-4), seed=0)
+    assert len(trajectory) - 1 == 32_000
+    assert trajectory.time_s[-1] == pytest.approx(3.2)
+    assert trajectory.termination_reason is None
+
+
+def test_numpy_integer_seeds_are_seeds():
+    env = MicroGravityLandingEnv(condition=1)
+    first, _ = env.reset(seed=np.int64(5))
+    second, _ = env.reset(seed=5)
+    np.testing.assert_array_equal(first, second)
+
+
+def test_templates_are_checked_and_an_exported_model_is_one(tmp_path):
+    from microg_env.cli import main
+
+    empty = tmp_path / "empty.xml"
+    empty.write_text("<mujoco/>")
+    with pytest.raises(ValueError, match="lacks the body"):
+        MicroGravityLandingEnv(xml_file=str(empty))
+    exported = tmp_path / "exported.xml"
+    assert main(["export-mjcf", str(exported), "--load", "0.05"]) == 0
+    env = MicroGravityLandingEnv(xml_file=str(exported))
+    obs, _ = env.reset(seed=0)
+    assert np.all(np.isfinite(obs))
+
+
+def test_reset_noise_enters_the_pad_check():
+    """A soft pad that takes a 100 mm start (70 mm deep) but not a 190 mm one (90 mm, beyond the
+    screw's 80 mm below touchdown), the top of 90 mm of start noise, is refused."""
+    from microg_env.params import PadParams, RigParams
+
+    soft = RigParams(pad=PadParams(stiffness_n_per_m=300.0, damping_n_s_per_m=30.0))
+    scenario = Scenario("soft", (LoadStep(0.49),), descent_height_m=0.1)
+    MicroGravityLandingEnv(scenario=scenario, params=soft)
+    with pytest.raises(ValueError, match="travel below touchdown"):
+        MicroGravityLandingEnv(scenario=scenario, params=soft, reset_noise_scale=0.09)

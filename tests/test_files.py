@@ -134,3 +134,20 @@ def test_a_hard_kill_while_the_report_is_written_leaves_nothing_behind_after_the
     assert list(tmp_path.iterdir()) == []
     replace_folder(out, _fill("next"))
     assert [p.name for p in tmp_path.iterdir()] == ["report"]
+
+
+def test_read_only_files_are_not_replaced(tmp_path):
+    target = tmp_path / "out.xml"
+    target.write_text("keep")
+    target.chmod(0o444)
+    with pytest.raises(ValueError, match="read-only"):
+        check_output_file(str(target), "FILE", (".xml",))
+
+
+def test_a_kill_after_the_swap_but_before_the_marker_was_removed(tmp_path):
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "report.md").write_text("new")
+    (out / ".complete").touch()
+    report.check_output(out)  # it used to refuse: "holds files that are not a report (.complete)"
+    assert sorted(p.name for p in out.iterdir()) == ["report.md"]

@@ -135,3 +135,18 @@ def test_a_free_fall_too_short_to_fit_is_null_with_its_reason():
     metrics = compute_metrics(_reference(scenario, 5.0), _reference(scenario, 5.0))
     assert math.isnan(metrics.compensation_error_pct[0])
     assert "under the 1 s a descent fit needs" in metrics.unavailable["descent_accel_m_s2[0]"]
+
+
+def test_every_null_per_stage_metric_has_its_reason():
+    scenario = Scenario("low", (LoadStep(0.49),), descent_height_m=0.0005)
+    metrics = compute_metrics(_reference(scenario, 5.0), _reference(scenario, 5.0))
+    for name in ("descent_accel_m_s2", "compensation_error_pct", "residual_gravity_g", "microgravity_level_g"):
+        assert math.isnan(getattr(metrics, name)[0])
+        assert "descent fit needs" in metrics.unavailable[f"{name}[0]"]
+
+
+def test_weights_placed_together_are_not_called_never_reached():
+    scenario = Scenario("together", (LoadStep(0.25), LoadStep(0.24)), descent_height_m=0.09)
+    metrics = compute_metrics(_reference(scenario, 4.0), _reference(scenario, 4.0))
+    assert "placed together with the next" in metrics.unavailable["descent_accel_m_s2[0]"]
+    assert metrics.descent_accel_m_s2[1] == pytest.approx(metrics.ideal_descent_accel_m_s2[1], rel=1e-6)

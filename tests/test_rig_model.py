@@ -291,3 +291,38 @@ def test_episode_fields_equal_a_fresh_build():
         np.testing.assert_allclose(getattr(rig.model, name), getattr(fresh.model, name), rtol=1e-12, err_msg=name)
     with pytest.raises(ValueError, match="support_mass_kg"):
         rig.configure(replace(drawn, screw=replace(drawn.screw, support_mass_kg=50.0)))
+
+
+@pytest.mark.parametrize(
+    ("path", "value"),
+    [
+        ("screw.lead_m", 1e300),
+        ("screw.lead_m", 1e-300),
+        ("screw.belt_ratio", 1e300),
+        ("balancer.piston_area_m2", 1e300),
+        ("qzs.residual_stiffness_n_per_m", 1e-300),
+        ("sensors.ruler_noise_m", 1e300),
+        ("screw.support_mass_kg", 1e-300),
+        ("gravity_m_s2", 1e9),
+    ],
+)
+def test_parameters_outside_any_plausible_rig_are_named(path, value):
+    """Values that made the model overflow, divide by zero or return NaN observations."""
+    from microg_env.params import with_overrides
+
+    with pytest.raises(ValueError, match=path.split(".")[-1]):
+        with_overrides(RigParams(), {path: value})
+
+
+def test_modes_too_fast_for_the_physics_step_are_refused():
+    fast = replace(RigParams(), servo=replace(ServoParams(), speed_loop_gain_hz=5000.0))
+    with pytest.raises(ValueError, match="speed_loop_gain_hz"):
+        build_rig(fast)  # 2 pi 5000 Hz x 100 us = 3.1
+    build_rig(fast, physics_step_s=2e-5)  # resolved at 20 us
+
+
+def test_overrides_must_be_a_mapping():
+    from microg_env.params import with_overrides
+
+    with pytest.raises(ValueError, match="overrides"):
+        with_overrides(RigParams(), [("pad.stiffness_n_per_m", 1.0)])

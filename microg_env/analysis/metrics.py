@@ -160,6 +160,8 @@ class LandingMetrics:
 
 
 _CONTACT_METRICS = ("max_deformation_m", "collision_accel_m_s2", "contact_time_s", "restitution")
+#: The per-stage metrics, all from the stage's descent fit.
+_PER_STAGE = ("descent_accel_m_s2", "compensation_error_pct", "residual_gravity_g", "microgravity_level_g")
 
 
 def landing(traj: Trajectory) -> LandingMetrics:
@@ -206,22 +208,30 @@ def compute_metrics(traj: Trajectory, reference: Trajectory) -> RunMetrics:
     touchdown = found[0].start if found else None
     ideal = list(traj.scenario.ideal_descent_m_s2(traj.lander_mass_kg, g))
     measured = []
-    for i, window in enumerate(stage_windows(traj, touchdown)):
-        key = f"descent_accel_m_s2[{i}]"
+    windows = stage_windows(traj, touchdown)
+    for i, window in enumerate(windows):
+        reason = None
         if window is None:
-            unavailable[key] = f"load stage {i + 1} was never reached"
-            measured.append(math.nan)
-            continue
-        i0, i1 = window
-        span = traj.time_s[i1 - 1] - traj.time_s[i0] if i1 > i0 else 0.0
-        if span < MIN_FIT_S:
-            unavailable[key] = (
-                f"load stage {i + 1}'s free fall lasted {max(span, 0.0):.2f} s after settling, "
-                f"under the {MIN_FIT_S:g} s a descent fit needs"
+            later = any(w is not None for w in windows[i + 1 :])
+            reason = (
+                f"load stage {i + 1}'s weight was placed together with the next, so it has no free fall of its own"
+                if later
+                else f"load stage {i + 1} was never reached"
             )
-            measured.append(math.nan)
+        else:
+            i0, i1 = window
+            span = traj.time_s[i1 - 1] - traj.time_s[i0] if i1 > i0 else 0.0
+            if span < MIN_FIT_S:
+                reason = (
+                    f"load stage {i + 1}'s free fall lasted {max(span, 0.0):.2f} s after settling, "
+                    f"under the {MIN_FIT_S:g} s a descent fit needs"
+                )
+        if reason is None:
+            measured.append(descent_acceleration(traj, window))
             continue
-        measured.append(descent_acceleration(traj, window))
+        measured.append(math.nan)
+        for name in _PER_STAGE:
+            unavailable[f"{name}[{i}]"] = reason
     rig, ideal_landing = landing(traj), landing(reference)
     unavailable |= rig.unavailable
     unavailable |= {f"reference_{name}": reason for name, reason in ideal_landing.unavailable.items()}

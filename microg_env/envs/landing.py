@@ -173,8 +173,8 @@ class MicroGravityLandingEnv(gym.Env):
                 f"Scenario.duration_s {self.scenario.duration_s:g} s at control_period_s {self.control_period_s:g} s "
                 f"is {self._max_steps} control steps, more than the {MAX_CONTROL_STEPS} one run may take"
             )
-        self.compensation_scale = validate.positive("compensation_scale", compensation_scale)
-        self.action_rate_weight = validate.non_negative("action_rate_weight", action_rate_weight)
+        self.compensation_scale = validate.between("compensation_scale", compensation_scale, 1e-9, 1e3)
+        self.action_rate_weight = validate.non_negative("action_rate_weight", action_rate_weight, upper=1e6)
         self.reset_noise_scale = _check_reset_noise(reset_noise_scale, self.scenario)
         if render_mode is not None:
             validate.choice("render_mode", render_mode, tuple(self.metadata["render_modes"]))
@@ -182,13 +182,15 @@ class MicroGravityLandingEnv(gym.Env):
             _check_display()
         self.render_mode = render_mode
         self.xml_file = None if xml_file is None else str(xml_file)
-        if self.xml_file is not None and not Path(self.xml_file).is_file():
-            raise ValueError(f"xml_file {self.xml_file!r} is not a file")
+        if self.xml_file is not None and (
+            Path(self.xml_file).suffix.lower() != ".xml" or not Path(self.xml_file).is_file()
+        ):
+            raise ValueError(f"xml_file {self.xml_file!r} is not an .xml file")
         self._render_size = (
             validate.integer("width", width, 1, MAX_RENDER_PIXELS),
             validate.integer("height", height, 1, MAX_RENDER_PIXELS),
         )
-        self._camera_name = camera_name
+        self._camera_name = validate.instance("camera_name", camera_name, str)
         self._renderer = None
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.control_period_s)}
         self._human_every = max(1, round(1.0 / (60.0 * self.control_period_s)))
@@ -235,22 +237,24 @@ class MicroGravityLandingEnv(gym.Env):
         scenario = self.scenario
         top = params.screw.range_m[1] - STOP_MARGIN_M - 0.01
         if scenario.descent_height_m + self.reset_noise_scale > top:
+            noise = f" plus reset_noise_scale {self.reset_noise_scale!r} m" if self.reset_noise_scale else ""
             raise ValueError(
-                f"Scenario.descent_height_m {scenario.descent_height_m!r} m plus reset_noise_scale "
-                f"{self.reset_noise_scale!r} m is above the screw's reach ({top:.3f} m)"
+                f"Scenario.descent_height_m {scenario.descent_height_m!r} m{noise} is above the screw's reach "
+                f"({top:.3f} m)"
             )
         g, mass, load = params.gravity_m_s2, params.lander.mass_kg, sum(scenario.loads_kg)
         validate_loads(scenario.loads_kg, mass)
-        speed = scenario.impact_speed_m_s(mass, g)
-        check_pad(params.pad, mass + load, speed, load * g, self.physics_step_s, scenario.name)
+        highest = replace(scenario, descent_height_m=scenario.descent_height_m + self.reset_noise_scale)
+        speed = highest.impact_speed_m_s(mass, g)
+        check_pad(params, mass + load, speed, load * g, self.physics_step_s, scenario.name)
         if self.domain_randomization is not None:
-            self.domain_randomization.check(params, scenario, self.physics_step_s)
+            self.domain_randomization.check(params, highest, self.physics_step_s)
 
     # -- gymnasium API -------------------------------------------------------------------------
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         if seed is not None:
-            validate.integer("seed", seed, 0)
+            seed = validate.integer("seed", seed, 0)  # a plain int (Gymnasium refuses NumPy integers)
         generator = (self._np_random, self._np_random_seed)
         try:
             super().reset(seed=seed)
@@ -315,7 +319,8 @@ class MicroGravityLandingEnv(gym.Env):
         obs = self._sense()
         deviation = self._support_force_deviation()
         error = deviation / episode["reference_weight_n"]
-        reward_compensation = math.exp(-((error / self.compensation_scale) ** 2))
+        ratio = min(abs(error) / self.compensation_scale, 1e150)  # never overflows when squared
+        reward_compensation = math.exp(-(ratio**2))
         reason = self._termination_reason()
         info = self._info(
             command * self.rig.params.screw.max_speed_m_per_s,
@@ -480,11 +485,10 @@ def _check_display() -> None:
 
 
 def _check_action(action) -> float:
-    """The action as a float in [-1, 1]; NaN, infinite or wrongly shaped actions raise."""
-    try:
-        array = np.asarray(action, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"action must be an array of shape (1,), got {action!r}") from None
+    """The action as a float in [-1, 1]; NaN, infinite, non-numeric or wrongly shaped actions raise."""
+    array = np.asarray(action)
+    if array.dtype.kind not in "fiu":  # not bool, complex, string or object
+        raise ValueError(f"action must be a real-valued array of shape (1,), got {action!r}")
     if array.shape != (1,):
         raise ValueError(f"action must have shape (1,), got shape {array.shape}")
     value = float(array[0])

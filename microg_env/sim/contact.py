@@ -31,6 +31,11 @@ def _check(mass_kg: float, stiffness_n_per_m: float, damping_n_s_per_m: float) -
     ):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    product = stiffness_n_per_m * mass_kg
+    if not (math.isfinite(product) and product > 0 and math.isfinite(math.sqrt(stiffness_n_per_m / mass_kg))):
+        raise ValueError(
+            f"stiffness {stiffness_n_per_m!r} N/m and mass {mass_kg!r} kg are outside what floating point can take"
+        )
     ratio = damping_ratio(mass_kg, stiffness_n_per_m, damping_n_s_per_m)
     if ratio >= 1.0:
         raise ValueError(

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from microg_env import validate
-from microg_env.params import LOAD_CAPACITY_KG, MIN_STEPS_PER_CONTACT, PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RigParams
+from microg_env.params import MIN_STEPS_PER_CONTACT, PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RANGES, RigParams
 from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.limits import check_damping
 from microg_env.sim.model import PadTest, build_pad_test
@@ -95,9 +95,13 @@ def validate_drop(
     mass_kg: float, stiffness: float, damping: float, impact_speed: float, params: RigParams
 ) -> SpringDamperContact:
     """Reject inputs the Section 2 model, the rig or the physics step cannot take, naming the bad value."""
-    validate.positive("mass", mass_kg, "kg", LOAD_CAPACITY_KG, "the rig's load capacity")
-    validate.positive("stiffness", stiffness, "N/m")
-    validate.positive("damping", damping, "N s/m")
+    for name, value, key in (
+        ("mass", mass_kg, "LanderParams.mass_kg"),
+        ("stiffness", stiffness, "PadParams.stiffness_n_per_m"),
+        ("damping", damping, "PadParams.damping_n_s_per_m"),
+    ):
+        low, high, unit = RANGES[key]  # the same bounds as the rig's parameters
+        validate.between(name, value, low, high, unit)
     validate.positive("velocity", impact_speed, "m/s")
     contact = check_damping(mass_kg, stiffness, damping)
     if contact.contact_time_s > _MAX_SIMULATED_S:

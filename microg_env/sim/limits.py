@@ -2,13 +2,17 @@
 
 A pad whose contact (Eq. 7) lasts fewer than ``MIN_STEPS_PER_CONTACT`` physics steps would be
 integrated so coarsely that the landing gains energy; a landing that would deform the pad by its
-whole thickness bottoms out on the floor, where the linear law of Section 2 no longer holds. Both
-are rejected with a one-line error that names the value and the bound.
+whole thickness bottoms out on the floor, where the linear law of Section 2 no longer holds. The
+rig's other explicitly integrated modes (the drive's speed loop, the friction bristles, the QZS
+spring) must be resolved by the physics step too. Each is rejected with a one-line error that
+names the value and the bound.
 """
 
 from __future__ import annotations
 
-from microg_env.params import MIN_PAD_DAMPING_RATIO, MIN_STEPS_PER_CONTACT, PadParams
+import math
+
+from microg_env.params import MIN_PAD_DAMPING_RATIO, MIN_STEPS_PER_CONTACT, PadParams, RigParams
 from microg_env.sim.contact import SpringDamperContact
 
 
@@ -23,11 +27,9 @@ def check_damping(mass_kg: float, stiffness_n_per_m: float, damping_n_s_per_m: f
     return contact
 
 
-def check_pad(
-    pad: PadParams, mass_kg: float, impact_speed_m_s: float, load_n: float, physics_step_s: float, context: str
-) -> SpringDamperContact:
-    """Raise ValueError if a lander of ``mass_kg`` landing at ``impact_speed_m_s`` under ``load_n``
-    (the test weights' weight) needs a finer physics step, or would bottom the pad out."""
+def check_pad_model(pad: PadParams, mass_kg: float, physics_step_s: float, context: str) -> SpringDamperContact:
+    """Raise ValueError if the pad, carrying ``mass_kg``, is over- or under-damped or too stiff for
+    the physics step (its contact would last fewer than MIN_STEPS_PER_CONTACT steps)."""
     contact = check_damping(mass_kg, pad.stiffness_n_per_m, pad.damping_n_s_per_m)
     finest = contact.contact_time_s / MIN_STEPS_PER_CONTACT
     if physics_step_s > finest:
@@ -36,11 +38,62 @@ def check_pad(
             f"contact, fewer than {MIN_STEPS_PER_CONTACT} physics steps of {physics_step_s:g} s; "
             f"use physics_step_s <= {finest:.2g} s or a softer pad"
         )
+    return contact
+
+
+def usable_depth_m(params: RigParams) -> tuple[float, str]:
+    """How deep the foot may sink into the pad, m, and what limits it: the pad's thickness (the
+    foot bottoms out) or the screw's travel below touchdown (the support must follow the foot)."""
+    pad, travel = params.pad.thickness_m, params.screw.travel_below_touchdown_m
+    if travel < pad:
+        return travel, f"the screw's {travel * 1e3:.0f} mm of travel below touchdown"
+    return pad, f"the pad's {pad * 1e3:.0f} mm thickness"
+
+
+def check_pad(
+    params: RigParams, mass_kg: float, impact_speed_m_s: float, load_n: float, physics_step_s: float, context: str
+) -> SpringDamperContact:
+    """Raise ValueError if a lander of ``mass_kg`` landing at ``impact_speed_m_s`` under ``load_n``
+    (the test weights' weight) needs a finer physics step, or would sink deeper than the rig allows."""
+    pad = params.pad
+    contact = check_pad_model(pad, mass_kg, physics_step_s, context)
     # The peak of the free collision plus the static sink under the weights bounds the deformation.
     depth = contact.max_deformation_m(impact_speed_m_s) + load_n / pad.stiffness_n_per_m
-    if depth >= pad.thickness_m:
+    limit, what = usable_depth_m(params)
+    if depth >= limit:
         raise ValueError(
             f"pad stiffness {pad.stiffness_n_per_m:g} N/m and damping {pad.damping_n_s_per_m:g} N s/m ({context}) "
-            f"would deform the pad by {depth * 1e3:.1f} mm, beyond its {pad.thickness_m * 1e3:.0f} mm thickness"
+            f"would deform the pad by {depth * 1e3:.1f} mm, beyond {what}"
         )
     return contact
+
+
+#: Largest product of an explicitly integrated mode's frequency and the physics step.
+MAX_OMEGA_DT = 1.0
+
+
+def check_integrable(params: RigParams, physics_step_s: float, ideal_drive: bool) -> None:
+    """Raise ValueError if a mode the integrator treats explicitly is too fast for the physics step."""
+    screw, servo, qzs = params.screw, params.servo, params.qzs
+    mass = params.lander.mass_kg
+    modes = [("QZSParams.residual_stiffness_n_per_m", math.sqrt(abs(qzs.residual_stiffness_n_per_m) / mass))]
+    if qzs.guide_friction_n > 0:
+        modes.append(
+            ("QZSParams.guide_bristle_stiffness_n_per_m", math.sqrt(qzs.guide_bristle_stiffness_n_per_m / mass))
+        )
+    if not ideal_drive:
+        inertia = (
+            servo.rotor_inertia_kg_m2 + screw.screw_inertia_kg_m2 + screw.support_mass_kg / screw.gear_rad_per_m**2
+        )
+        modes.append(("ServoParams.speed_loop_gain_hz", 2.0 * math.pi * servo.speed_loop_gain_hz))
+        if servo.bristle_stiffness_n_m_per_rad > 0:
+            modes.append(
+                ("ServoParams.bristle_stiffness_n_m_per_rad", math.sqrt(servo.bristle_stiffness_n_m_per_rad / inertia))
+            )
+    for name, omega in modes:
+        if omega * physics_step_s > MAX_OMEGA_DT:
+            raise ValueError(
+                f"{name} makes a {omega:.3g} rad/s mode, too fast for physics_step_s {physics_step_s:g} s "
+                f"(omega dt {omega * physics_step_s:.2g} > {MAX_OMEGA_DT:g}); use physics_step_s <= "
+                f"{MAX_OMEGA_DT / omega:.2g} s"
+            )

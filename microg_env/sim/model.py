@@ -21,6 +21,7 @@ import numpy as np
 
 from microg_env import validate
 from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RigParams, parameter_paths
+from microg_env.sim.limits import check_integrable
 
 #: Density of the steel test weights (for their size only; their mass is what matters).
 _STEEL_DENSITY_KG_M3 = 7850.0
@@ -373,9 +374,38 @@ def _apply_geometry_and_masses(spec: mujoco.MjSpec, params: RigParams, physics_s
     spec.joint("qzs").range = (-params.qzs.stroke_m / 2.0, params.qzs.stroke_m / 2.0)
 
 
+#: Elements a template must name (by kind, as MjSpec finds them).
+_TEMPLATE_ELEMENTS = {
+    "body": ("floating_support", "lander"),
+    "geom": ("foot", "foot_plate", "pad", "pad_block"),
+    "site": ("foot_sole", "imu"),
+    "joint": ("screw", "qzs"),
+    "tendon": ("balancer",),
+    "actuator": ("servo", "guide_friction"),
+    "sensor": ("grating_ruler", "encoder_pos", "encoder_vel", "lander_accel", "pad_force"),
+    "key": ("home",),
+}
+
+
+def _load_template(xml_file: str | Path | None) -> mujoco.MjSpec:
+    """The MJCF template (the packaged scene.xml by default), checked for every element the rig needs."""
+    path = mjcf_dir() / "scene.xml" if xml_file is None else Path(xml_file)
+    try:
+        spec = mujoco.MjSpec.from_file(str(path))
+    except ValueError as error:
+        first = str(error).strip().splitlines()[0] if str(error).strip() else "unreadable"
+        raise ValueError(f"xml_file {str(path)!r} is not a valid MJCF file: {first}") from None
+    for kind, names in _TEMPLATE_ELEMENTS.items():
+        missing = [name for name in names if getattr(spec, kind)(name) is None]
+        if missing:
+            raise ValueError(f"xml_file {str(path)!r} lacks the {kind} {', '.join(missing)} the rig needs")
+    return spec
+
+
 def _add_loads(spec: mujoco.MjSpec, loads_kg: tuple[float, ...]) -> None:
-    for name in TEMPLATE_LOADS:
-        spec.delete(spec.body(name))
+    for body in list(spec.body("lander").bodies):  # the template's weights, or an exported model's
+        if body.name in TEMPLATE_LOADS or body.name.startswith("load_"):
+            spec.delete(body)
     lander = spec.body("lander")
     deck_top = 0.77
     for i, mass in enumerate(loads_kg):
@@ -511,7 +541,8 @@ def build_spec(
     loads_kg = tuple(loads_kg)
     validate_loads(loads_kg, params.lander.mass_kg)
     physics_step_s = check_physics_step(physics_step_s)
-    spec = mujoco.MjSpec.from_file(str(mjcf_dir() / "scene.xml" if xml_file is None else xml_file))
+    check_integrable(params, physics_step_s, ideal_drive)
+    spec = _load_template(xml_file)
     _apply_geometry_and_masses(spec, params, physics_step_s)
     _add_loads(spec, loads_kg)
     _apply_flexible_unit(spec, params)
@@ -562,7 +593,7 @@ def build_pad_test(
     """
     params = RigParams() if params is None else params
     validate.non_negative("field", field_m_s2, "m/s^2")
-    spec = mujoco.MjSpec.from_file(str(mjcf_dir() / "scene.xml"))
+    spec = _load_template(None)
     _apply_geometry_and_masses(spec, params, physics_step_s)
     _add_loads(spec, ())
     spec.option.gravity = (0.0, 0.0, -field_m_s2)
