@@ -1,6 +1,6 @@
 """microg: MuJoCo model of the QZS microgravity landing rig of Jia et al., Actuators 2024, 13(9), 361.
 
-Importing the package registers the Gymnasium environment ``MicroGravityLanding-v0``.
+Importing the package registers the Gymnasium environment ``MicroGravityLanding-v1``.
 """
 
 from gymnasium.envs.registration import register, registry
@@ -13,12 +13,12 @@ from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.drop import drop_test, static_sink
 from microg_env.sim.model import PadTest, Rig, build_pad_test, build_rig
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
-if "MicroGravityLanding-v0" not in registry:
+if "MicroGravityLanding-v1" not in registry:
     # No max_episode_steps: the environment truncates itself at its scenario's duration, whatever
     # the control period (a step count fixed here would cut a 100 us episode off at 3 s).
-    register(id="MicroGravityLanding-v0", entry_point="microg_env.envs.landing:MicroGravityLandingEnv")
+    register(id="MicroGravityLanding-v1", entry_point="microg_env.envs.landing:MicroGravityLandingEnv")
 
 __all__ = [
     "CONDITIONS",

@@ -11,12 +11,14 @@ import argparse
 import json
 import math
 import os
+import shlex
 import sys
+import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from microg_env.controllers.pid import CONTROLLER_NAMES
+from microg_env.controllers.registry import CONTROLLER_NAMES
 from microg_env.params import CONTROL_PERIOD_RANGE_S, LOAD_CAPACITY_KG, PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S
 from microg_env.scenarios import MAX_DURATION_S, MIN_DURATION_S, MIN_HEIGHT_M, MIN_LOAD_KG, LoadStep
 
@@ -246,7 +248,7 @@ def _print_run(env, args: argparse.Namespace, m) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from microg_env.analysis.evaluate import run_with_metrics
-    from microg_env.controllers.pid import make_controller
+    from microg_env.controllers import make_controller
     from microg_env.envs.landing import MicroGravityLandingEnv
     from microg_env.files import check_output_file
     from microg_env.imperfections import Imperfections
@@ -257,6 +259,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from microg_env.analysis.plots import figure_class
 
         figure_class()  # fail now, not after the run, if matplotlib is missing
+    video = None
+    if args.video is not None:
+        from microg_env.analysis.video import VIDEO_SIZE, VIDEO_SUFFIXES, LandingVideo, check_video_support
+
+        path = check_output_file(args.video, "--video", VIDEO_SUFFIXES)
+        check_video_support(path)
+        title = f"microg: {_scenario(args).name}, {args.controller}, seed {args.seed}"
+        video = LandingVideo(path, title)
+    if args.randomize and args.ideal:
+        raise ValueError("--randomize: an --ideal rig has nothing to randomise; give one of them")
     period, step = args.control_period * 1e-6, args.physics_step * 1e-6
     try:
         env = MicroGravityLandingEnv(
@@ -264,12 +276,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
             control_period_s=period,
             physics_step_s=step,
             imperfections=Imperfections.none() if args.ideal else Imperfections(),
+            domain_randomization=args.randomize or None,
             params=replace(RigParams(), pad=_pad(args)),
+            **({"render_mode": "rgb_array", "width": VIDEO_SIZE[0], "height": VIDEO_SIZE[1]} if video else {}),
         )
+        controller = make_controller(args.controller, period)
     except ValueError as error:
         raise _naming(error, RUN_OPTIONS) from None
-    controller = make_controller(args.controller, period)
-    trajectory, reference, metrics = run_with_metrics(env, controller, seed=args.seed)
+    trajectory, reference, metrics = run_with_metrics(env, controller, seed=args.seed, on_step=video)
+    env.close()
     if args.json:
         print(json.dumps(metrics.as_dict(), indent=2))
     else:
@@ -280,6 +295,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         plot_run(trajectory, reference, f"{env.scenario.name}, {args.controller}, seed {args.seed}", plot)
         if not args.json:
             print(f"wrote {plot}")
+    if video is not None:
+        video.write()
+        if not args.json:
+            print(f"wrote {video.path}")
     return 0
 
 
@@ -348,6 +367,148 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         runs = reproduction.compute(duration_s=duration, seed=args.seed, progress=bar.update)
     report.write(runs, out)
     print(f"wrote {out / 'report.md'}")
+    return 0
+
+
+def _positive_int(text: str) -> int:
+    """A count: a positive whole number, also written 1e6."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not (math.isfinite(value) and value.is_integer() and 1 <= value <= 1e12):
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
+    return int(value)
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    try:
+        import stable_baselines3  # noqa: F401
+        import torch  # noqa: F401
+        from tqdm import tqdm
+
+        from microg_env.learning.train import TrainingInterrupted, TrainSettings, resolve, resumed_run, train
+    except ImportError:
+        raise ValueError("microg train needs the train extra: pip install 'microg-env[train]'") from None
+    settings = TrainSettings(
+        algo=args.algo,
+        env_id=args.env,
+        seed=args.seed,
+        timesteps=args.timesteps,
+        n_envs=args.n_envs,
+        hyperparams=args.hyperparams,
+        log_folder=args.log_folder,
+        eval_freq=args.eval_freq,
+        eval_episodes=args.eval_episodes,
+        checkpoint_freq=args.checkpoint_freq,
+        command=" ".join(["microg", *map(shlex.quote, args.argv)]),
+    )
+    resume = None
+    if args.resume is not None:
+        resume = Path(args.resume)
+        if not (args.resume.strip() and resume.is_dir()):
+            raise ValueError(f"--resume {args.resume!r}: no such run folder")
+        resumed_run(resume, settings)  # a run that cannot be continued is named before anything is written
+    else:
+        try:
+            resolve(settings)  # a bad file or entry is named before anything is written
+        except ValueError as error:
+            raise ValueError(f"--hyperparams: {error}" if args.hyperparams is not None else str(error)) from None
+        _check_writable_folder(args.log_folder, "--log-folder")
+    stream = _ProgressStream(sys.stderr)
+    with tqdm(total=0, unit="step", unit_scale=True, desc=f"train {args.algo}", file=stream, disable=args.quiet) as bar:
+
+        def progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+        def log(line: str) -> None:
+            bar.write(line, file=sys.stdout)
+
+        try:
+            folder = train(settings, resume, progress, log)
+        except TrainingInterrupted as stop:
+            bar.write(f"microg train: {stop}", file=sys.stderr)
+            return 130
+    print(f"wrote {folder}")
+    return 0
+
+
+def _check_writable_folder(path: str, option: str) -> None:
+    """``path`` is a folder this user may write in, or can be made one (nothing is created here)."""
+    if not path.strip():
+        raise ValueError(f"{option}: the folder name is empty")
+    folder = Path(os.path.abspath(path))
+    existing = folder
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"{option} {path!r}: {str(existing)!r} is not a folder")
+    try:  # the one reliable writability test (root passes os.access on read-only file systems)
+        tempfile.TemporaryDirectory(dir=existing).cleanup()
+    except OSError as error:
+        raise ValueError(f"{option} {path!r} is not writable ({error.strerror})") from None
+
+
+def _list(text: str) -> list[str]:
+    """A comma-separated list (spaces around the commas allowed), with no empty items."""
+    items = [item.strip() for item in text.split(",")]
+    if not all(items):
+        raise argparse.ArgumentTypeError(f"empty item in {text!r}")
+    return items
+
+
+def _controller_name(text: str) -> str:
+    from microg_env.controllers.registry import check_controller_name
+
+    try:
+        return check_controller_name(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error).removeprefix("controller ")) from None
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from microg_env.analysis import comparison, comparison_report
+    from microg_env.controllers.registry import CONTROLLER_NAMES, check_controller_name
+    from microg_env.scenarios import comparison_scenarios
+
+    controllers = args.controllers or list(CONTROLLER_NAMES)
+    for name in controllers:
+        try:
+            check_controller_name(name)
+        except ValueError as error:
+            raise ValueError(f"--controllers: {error}") from None
+    known = comparison_scenarios()
+    scenarios = args.scenarios or list(known)
+    for name in scenarios:
+        if name not in known:
+            raise ValueError(f"--scenarios: scenario must be one of {', '.join(known)}, got {name!r}")
+    if args.out is not None:
+        comparison_report.figure_class()  # fail now, not after the runs, if matplotlib is missing
+        comparison_report.check_output(args.out)
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        raise ValueError("microg compare needs the report extra: pip install 'microg-env[report]'") from None
+    total = len(dict.fromkeys(controllers)) * len(scenarios) * args.seeds
+    with tqdm(total=total, unit="episode", desc="compare", file=_ProgressStream(sys.stderr), disable=args.quiet) as bar:
+        result = comparison.compare(
+            controllers,
+            scenarios,
+            seeds=args.seeds,
+            first_seed=args.first_seed,
+            randomize=args.randomize,
+            duration_s=args.duration,
+            workers=args.workers,
+            progress=bar.update,
+        )
+    if args.json:
+        print(json.dumps(result.as_dict(), indent=2))
+    else:
+        print(comparison_report.render_markdown(result))
+    if args.out is not None:
+        comparison_report.write(result, args.out)
+        print(f"wrote {args.out}", file=sys.stderr if args.json else sys.stdout)
     return 0
 
 
@@ -430,9 +591,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = commands.add_parser(
         "run",
-        help="run a test condition with a baseline controller and print its metrics",
+        help="run a test condition with a controller and print its metrics",
         description="Run one of the paper's test conditions (or a custom load schedule) in the environment with a "
-        "baseline controller, and print the microgravity and landing metrics beside the ideal-microgravity reference.",
+        "baseline or learned controller, and print the microgravity and landing metrics beside the "
+        "ideal-microgravity reference.",
     )
     run.add_argument("--condition", type=int, choices=(1, 2, 3), default=1, help="the paper's condition (Table 2)")
     run.add_argument(
@@ -447,7 +609,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--height", type=_number(MIN_HEIGHT_M * 1e3, 1e4, "mm", low_open=False), metavar="MM", help="descent height"
     )
-    run.add_argument("--controller", choices=CONTROLLER_NAMES, default="pid", help="baseline controller")
+    run.add_argument(
+        "--controller",
+        type=_controller_name,
+        default="pid",
+        metavar="NAME",
+        help=f"{', '.join(CONTROLLER_NAMES)}, or a policy folder (default pid)",
+    )
     _add_duration_option(run, "simulated time (default 30 s)")
     run.add_argument("--seed", type=_seed, default=0, help="seed of sensor noise and drift")
     low, high = (1e6 * v for v in CONTROL_PERIOD_RANGE_S)
@@ -460,10 +628,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_physics_step_option(run)
     run.add_argument("--ideal", action="store_true", help="switch every imperfection off (an ideal drive and rig)")
+    run.add_argument(
+        "--randomize", action="store_true", help="a randomised plant (lander, pad, friction, weights) drawn from --seed"
+    )
     _add_pad_options(run)
     run.add_argument("--json", action="store_true", help="print one JSON object of metrics")
     run.add_argument(
         "--plot", metavar="FILE", help="write height, x, acceleration and pad force over time (.png, .pdf, .svg)"
+    )
+    run.add_argument(
+        "--video",
+        metavar="FILE",
+        help="render the run headless with x and the pad force shown (.gif, or .mp4 with imageio-ffmpeg)",
     )
     run.set_defaults(handler=_cmd_run)
 
@@ -490,6 +666,88 @@ def build_parser() -> argparse.ArgumentParser:
     )
     calibrate.add_argument("--json", action="store_true", help="print one JSON object")
     calibrate.set_defaults(handler=_cmd_calibrate)
+
+    train = commands.add_parser(
+        "train",
+        help="train a learned controller with stable-baselines3 (rl-baselines3-zoo layout)",
+        description="Train PPO or SAC on MicroGravityLanding-v1 with the hyperparameters of training/hyperparams/"
+        "<algo>.yml (packaged), into logs/<algo>/<env>_<n>/: config, best model, normalisation, checkpoints, "
+        "TensorBoard events, monitor files, evaluations by the project's metrics and the exported policy.",
+    )
+    train.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="algorithm (stable-baselines3)")
+    train.add_argument("--env", default="MicroGravityLanding-v1", help="environment id")
+    train.add_argument("--seed", type=_seed, default=0, help="seed of the model and the training environments")
+    train.add_argument("--timesteps", type=_positive_int, metavar="N", help="steps to train (default: the file's)")
+    train.add_argument("--n-envs", type=_positive_int, metavar="N", help="environments (default: the file's)")
+    train.add_argument(
+        "-conf",
+        "--hyperparams",
+        metavar="FILE",
+        help="hyperparameter file in rl-baselines3-zoo's format (default: the packaged <algo>.yml)",
+    )
+    train.add_argument("--log-folder", default="logs", metavar="DIR", help="where runs go (default logs)")
+    from microg_env.learning.train import TrainSettings
+
+    defaults = TrainSettings(algo="ppo")
+    train.add_argument(
+        "--eval-freq",
+        type=_positive_int,
+        default=defaults.eval_freq,
+        metavar="N",
+        help=f"steps between evaluations (default {defaults.eval_freq})",
+    )
+    train.add_argument(
+        "--eval-episodes",
+        type=_positive_int,
+        default=defaults.eval_episodes,
+        metavar="N",
+        help=f"validation episodes per evaluation (default {defaults.eval_episodes})",
+    )
+    train.add_argument(
+        "--checkpoint-freq",
+        type=_positive_int,
+        default=defaults.checkpoint_freq,
+        metavar="N",
+        help=f"steps between checkpoints (default {defaults.checkpoint_freq})",
+    )
+    train.add_argument(
+        "--resume", metavar="RUN", help="continue the run in folder RUN from its last checkpoint (to --timesteps)"
+    )
+    train.add_argument("--quiet", action="store_true", help="no progress bar")
+    train.set_defaults(handler=_cmd_train)
+
+    compare = commands.add_parser(
+        "compare",
+        help="compare controllers on the same held-out scenarios and seeds",
+        description="Run every controller on the paper's conditions and the held-out scenarios, on the same seeds "
+        "(and, with --randomize, the same randomised plants); print mean, std, worst case and failure rate of the "
+        "compensation error, residual gravity, x in free fall and at the collision, and the deformation fidelity.",
+    )
+    compare.add_argument(
+        "--controllers",
+        type=_list,
+        metavar="A,B,...",
+        help=f"controllers or policy folders (default: {','.join(CONTROLLER_NAMES)})",
+    )
+    compare.add_argument(
+        "--scenarios",
+        type=_list,
+        metavar="A,B,...",
+        help="condition-1, condition-2, condition-3, heavy-second, light-long (default: all)",
+    )
+    compare.add_argument("--seeds", type=_positive_int, default=5, metavar="N", help="seeds per scenario (default 5)")
+    compare.add_argument(
+        "--first-seed", type=_seed, default=1000, metavar="S", help="first seed (default 1000, above training's)"
+    )
+    compare.add_argument("--randomize", action="store_true", help="randomised plants, drawn from each seed")
+    _add_duration_option(compare, "cap on each episode's simulated time (default: the scenario's)")
+    compare.add_argument("--workers", type=_positive_int, default=1, metavar="N", help="parallel processes (default 1)")
+    compare.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    compare.add_argument(
+        "--out", metavar="DIR", help="also write comparison.md, comparison.json and figures to DIR (replaced)"
+    )
+    compare.add_argument("--quiet", action="store_true", help="no progress bar")
+    compare.set_defaults(handler=_cmd_compare)
 
     export = commands.add_parser(
         "export-mjcf",
@@ -523,6 +781,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         _check_top_level(argv)
         args = build_parser().parse_args(argv)
+        args.argv = argv
         return args.handler(args)
     except UsageError as error:
         print(_one_line(str(error)), file=sys.stderr)

@@ -14,7 +14,7 @@ import os
 import shutil
 import stat
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 #: Marker written last into a staging folder: its presence means the folder is complete.
@@ -157,3 +157,50 @@ def replace_folder(out: Path, fill: Callable[[Path], None]) -> Path:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
     return out
+
+
+def data_folder(installed: str, source: str, probe: str) -> Path:
+    """A data folder of the package: ``microg_env/<installed>`` in a wheel, ``<source>`` of the
+    repository in a source checkout (an editable install); ``probe`` is a file it must hold."""
+    package = Path(__file__).resolve().parent
+    for candidate in (package / installed, package.parent / source):
+        if (candidate / probe).is_file():
+            return candidate
+    raise FileNotFoundError(
+        f"{probe} not found in {package / installed} or {package.parent / source}; the package is incomplete"
+    )
+
+
+def check_output_folder(out: str | Path, option: str, own_files: Iterable[str], what: str) -> None:
+    """Raise ValueError if ``out`` cannot take a folder of results (before any work is done).
+
+    ``out`` must be new, empty or an earlier result (holding only ``own_files``), a real folder (not
+    a link), and not the working folder or one of its parents: it is replaced as a whole. A swap
+    that a hard kill interrupted earlier is finished or undone first (:func:`recover_folder`).
+    """
+    text = str(out)
+    if not text.strip():
+        raise ValueError(f"{option}: the folder name is empty")
+    out = Path(os.path.abspath(text))
+    if Path.cwd().resolve().is_relative_to(out.resolve()):
+        raise ValueError(f"{option} {text!r} is the working folder or one of its parents")
+    if out.is_symlink():
+        raise ValueError(f"{option} {text!r} is a symbolic link; give the folder itself")
+    parent = out.parent
+    if not parent.is_dir():
+        raise ValueError(f"{option} {text!r}: folder {str(parent)!r} does not exist")
+    check_name_length(out, option)
+    recover_folder(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{option} {text!r} exists and is not a folder")
+    if out.is_dir():
+        others = sorted(p.name for p in out.iterdir() if p.name not in set(own_files))
+        if others:
+            raise ValueError(
+                f"{option} {text!r} holds files that are not {what} ({', '.join(others[:3])}); "
+                f"give a new folder, an empty one or an earlier {what.removeprefix('a ').removeprefix('an ')}"
+            )
+    try:  # the one reliable writability test (root passes os.access on read-only file systems)
+        tempfile.TemporaryDirectory(dir=parent).cleanup()
+    except OSError as error:
+        raise ValueError(f"{option} {text!r} is not writable ({error.strerror})") from None

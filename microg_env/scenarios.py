@@ -14,7 +14,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from microg_env import validate
 from microg_env.params import RigParams, parameter_paths, with_overrides
@@ -149,3 +149,100 @@ CONDITIONS: dict[int, Scenario] = {
 def condition(number: int) -> Scenario:
     """The paper's condition 1, 2 or 3."""
     return CONDITIONS[validate.integer("condition", number, 1, len(CONDITIONS))]
+
+
+@dataclass(frozen=True)
+class ScenarioSampler:
+    """Training schedules, drawn at every reset: short episodes that still hold a load placement
+    and a touchdown.
+
+    Two test weights: the first, ``first_load_kg``, placed at t = 0, the second, ``second_load_kg``,
+    when the foot comes down to a fraction ``switch_fraction`` of the start height; the start height
+    is drawn in ``descent_height_m`` until the ideal free fall touches down within
+    ``max_touchdown_s``, and the episode lasts ``after_touchdown_s`` beyond the touchdown (the first
+    contact, ~1.2 s on the paper's pad, and the start of the rebound). The paper's conditions start
+    higher (55-90 mm): they stay held out of training.
+    """
+
+    first_load_kg: tuple[float, float] = (0.05, 1.0)
+    second_load_kg: tuple[float, float] = (0.05, 1.0)
+    descent_height_m: tuple[float, float] = (0.003, 0.03)
+    switch_fraction: tuple[float, float] = (0.2, 0.8)
+    max_touchdown_s: float = 3.0
+    after_touchdown_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("first_load_kg", "second_load_kg", "descent_height_m", "switch_fraction"):
+            low, high = _range(f"ScenarioSampler.{name}", getattr(self, name))
+            if name.endswith("_kg"):
+                validate.at_least(f"ScenarioSampler.{name}", low, MIN_LOAD_KG, "kg")
+            elif name == "descent_height_m":
+                validate.at_least(f"ScenarioSampler.{name}", low, 2 * MIN_HEIGHT_M, "m")
+            else:
+                validate.between(f"ScenarioSampler.{name}", low, 0.01, 0.99)
+                validate.between(f"ScenarioSampler.{name}", high, 0.01, 0.99)
+        validate.positive("ScenarioSampler.max_touchdown_s", self.max_touchdown_s, "s", 60.0)
+        validate.positive("ScenarioSampler.after_touchdown_s", self.after_touchdown_s, "s", 60.0)
+
+    def sample(self, rng, lander_mass_kg: float, gravity_m_s2: float) -> Scenario:
+        """A schedule whose ideal free fall touches down within ``max_touchdown_s``."""
+        first, second = rng.uniform(*self.first_load_kg), rng.uniform(*self.second_load_kg)
+        fraction = rng.uniform(*self.switch_fraction)
+        low, high = self.descent_height_m
+        while True:  # the lowest start always touches down in time (checked by ``extremes``)
+            height = rng.uniform(low, high)
+            scenario = self._schedule(first, second, height, fraction)
+            touchdown = scenario.ideal_touchdown_s(lander_mass_kg, gravity_m_s2)
+            if touchdown <= self.max_touchdown_s:
+                return replace(scenario, duration_s=touchdown + self.after_touchdown_s)
+            high = height  # shrink towards the low end
+
+    def _schedule(self, first: float, second: float, height: float, fraction: float) -> Scenario:
+        loads = (LoadStep(first), LoadStep(second, height_m=max(fraction * height, MIN_HEIGHT_M)))
+        return Scenario("training", loads, descent_height_m=height)
+
+    def extremes(self, lander_mass_kg: float, gravity_m_s2: float) -> tuple[Scenario, ...]:
+        """The draws every check must pass: the heaviest weights from the highest start, and the
+        lightest from the lowest (the longest fall), which must touch down in time."""
+        heavy = self._schedule(self.first_load_kg[1], self.second_load_kg[1], self.descent_height_m[1], 0.99)
+        light = self._schedule(self.first_load_kg[0], self.second_load_kg[0], self.descent_height_m[0], 0.01)
+        longest = light.ideal_touchdown_s(lander_mass_kg, gravity_m_s2)
+        if longest > self.max_touchdown_s:
+            raise ValueError(
+                f"ScenarioSampler.descent_height_m {self.descent_height_m!r}: its lightest draw from its lowest start "
+                f"touches down after {longest:.2f} s, beyond max_touchdown_s {self.max_touchdown_s:g} s"
+            )
+        return heavy, replace(light, duration_s=longest + self.after_touchdown_s)
+
+
+def _range(name: str, pair: object) -> tuple[float, float]:
+    if not (isinstance(pair, tuple) and len(pair) == 2):
+        raise ValueError(f"{name} must be a (low, high) pair, got {pair!r}")
+    low, high = (validate.positive(name, value) for value in pair)
+    if low > high:
+        raise ValueError(f"{name} must be a (low, high) pair with low <= high, got {pair!r}")
+    return low, high
+
+
+#: Schedules that choose the best model during training: starts of 30-50 mm, between the training
+#: draws (3-30 mm) and the paper's conditions (55-90 mm), so the first weight's free fall lasts
+#: the second a compensation error needs.
+VALIDATION_SAMPLER = ScenarioSampler(
+    first_load_kg=(0.1, 1.0), descent_height_m=(0.03, 0.05), switch_fraction=(0.2, 0.4), max_touchdown_s=8.0
+)
+
+
+#: Test schedules held out of training and validation, beside the paper's conditions: starts above
+#: 50 mm, a second weight heavier than any drawn in training (1.4 kg), a light first weight with a
+#: long free fall. What ``microg compare`` tests on, with the conditions.
+HELD_OUT: dict[str, Scenario] = {
+    "heavy-second": Scenario(
+        "heavy-second", (LoadStep(0.3), LoadStep(1.4, height_m=0.02)), descent_height_m=0.07, duration_s=10.0
+    ),
+    "light-long": Scenario("light-long", (LoadStep(0.15),), descent_height_m=0.06, duration_s=12.0),
+}
+
+
+def comparison_scenarios() -> dict[str, Scenario]:
+    """The scenarios of a comparison by name: ``condition-1`` to ``condition-3`` and :data:`HELD_OUT`."""
+    return {f"condition-{number}": scenario for number, scenario in CONDITIONS.items()} | HELD_OUT

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import mujoco
+import numpy as np
 import pytest
 
 from microg_env import cli
@@ -77,6 +78,16 @@ NUMERIC_OPTIONS = {
     ("export-mjcf /tmp/never-written.xml", "--physics-step"): "physics",
     ("export-mjcf /tmp/never-written.xml", "--stiffness"): "stiffness",
     ("export-mjcf /tmp/never-written.xml", "--damping"): "damping",
+    ("train", "--timesteps"): "timesteps",
+    ("train", "--n-envs"): "n-envs",
+    ("train", "--eval-freq"): "eval-freq",
+    ("train", "--eval-episodes"): "eval-episodes",
+    ("train", "--checkpoint-freq"): "checkpoint-freq",
+    ("train", "--seed"): "seed",
+    ("compare", "--seeds"): "seeds",
+    ("compare", "--first-seed"): "first-seed",
+    ("compare", "--duration"): "duration",
+    ("compare", "--workers"): "workers",
 }
 #: Negative, zero, NaN, infinities, huge, tiny, empty, wrong type.
 BAD_NUMBERS = ["-1", "0", "nan", "inf", "-inf", "1e300", "1e-300", "", "ten", "0x10", "1,5"]
@@ -86,6 +97,9 @@ CHOICE_OPTIONS = {
     ("run", "--pad"): ["foam", ""],
     ("drop", "--pad"): ["foam"],
     ("calibrate", "--source"): ["guess"],
+    ("train", "--algo"): ["a2c", ""],
+    ("compare", "--controllers"): ["lqr", "", "pid,,feedforward", "pid,/tmp"],
+    ("compare", "--scenarios"): ["condition-4", "", "condition-1,"],
 }
 LONG = "x" * 230  # with a temporary name's prefix and suffix, over the usual 255-byte limit
 PATH_OPTIONS = {
@@ -112,13 +126,26 @@ PATH_OPTIONS = {
         "new\nline",
     ],
     ("export-mjcf",): ["", "{dir}", "rig.txt", "rig.xml/", "/nonexistent-folder/rig.xml", "/dev/stdout", f"{LONG}.xml"],
+    ("run", "--video"): [
+        "",
+        "video",
+        "run.png",
+        "{dir}",
+        "/nonexistent-folder/run.gif",
+        f"{LONG}.gif",
+        "{dangling}/run.gif",
+    ],
+    ("compare", "--out"): ["", ".", "{file}", "{dir}/..", "/nonexistent-folder/comparison", LONG, "{dirlink}"],
+    ("train", "--resume"): ["", "{file}", "/nonexistent-folder/run", "{dir}"],
+    ("train", "--hyperparams"): ["", "{file}", "/nonexistent-folder/ppo.yml", "{dir}"],
+    ("train", "--log-folder"): ["", "{file}", "{file}/logs", "/proc/logs"],
 }
 
 
 def _cases():
     for (command, option), word in NUMERIC_OPTIONS.items():
         for value in BAD_NUMBERS:
-            if option == "--seed" and value == "0":
+            if option in ("--seed", "--first-seed") and value == "0":
                 continue  # seed 0 is a good seed
             yield [*command.split(), option, value], word
     for (command, option), values in CHOICE_OPTIONS.items():
@@ -128,7 +155,7 @@ def _cases():
         for value in values:
             args = [key[0], value] if len(key) == 1 else [key[0], key[1], value]
             yield args, "FILE" if len(key) == 1 else key[1]
-    for command in ("drop", "run", "reproduce", "calibrate", "export-mjcf /tmp/never-written.xml"):
+    for command in ("drop", "run", "reproduce", "calibrate", "export-mjcf /tmp/never-written.xml", "train", "compare"):
         yield [*command.split(), "--bogus"], "--bogus"
     yield ["--bogus"], "--bogus"
     yield ["fly"], "fly"
@@ -154,6 +181,10 @@ def _cases():
     yield ["run", "--stiffness", "165", "--damping", "20"], "travel below touchdown"  # the screw's reach
     yield ["export-mjcf", "rig.xml", "--stiffness", "1e9"], "--stiffness"
     yield ["new\nline"], "new"
+    yield ["run", "--randomize", "--ideal"], "--randomize"
+    yield ["run", "--controller", "residual-ppo", "--control-period", "500"], "trained at 1000 us"
+    yield ["train", "--env", "CartPole-v1"], "--env"
+    yield ["train", "--algo", "sac", "--resume", "{dir}"], "--resume"
 
 
 @pytest.mark.parametrize(("args", "word"), list(_cases()), ids=lambda v: " ".join(v) if isinstance(v, list) else v)
@@ -289,3 +320,64 @@ def test_a_results_file_in_the_way_of_the_default_report_folder(tmp_path):
     assert result.returncode == 2
     assert "--out" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_run_video_renders_the_landing_with_x_and_the_pad_force(tmp_path, capsys):
+    from PIL import Image
+
+    out = tmp_path / "landing.gif"
+    assert main(["run", "--condition", "2", "--duration", "0.5", "--video", str(out)]) == 0
+    assert f"wrote {out}" in capsys.readouterr().out
+    with Image.open(out) as video:
+        assert video.n_frames == 11  # 20 frames per simulated second, the reset's included
+        assert video.size == (480, 360)
+        top = np.asarray(video.convert("RGB"))[:60]
+    assert (top == 0).all(axis=2).mean() > 0.5  # the caption band
+    assert (top > 200).all(axis=2).sum() > 500  # with white text in it
+    assert list(tmp_path.iterdir()) == [out]
+
+
+def test_run_randomize_draws_the_plant_from_the_seed(capsys):
+    args = ["run", "--condition", "2", "--duration", "5.5", "--json", "--randomize"]
+    values = []
+    for seed in ("1", "1", "2"):
+        assert main([*args, "--seed", seed]) == 0
+        values.append(json.loads(capsys.readouterr().out)["reference_max_deformation_m"])
+    assert values[0] == values[1] != values[2]
+    assert main(["run", "--condition", "2", "--duration", "5.5", "--json", "--seed", "1"]) == 0
+    nominal = json.loads(capsys.readouterr().out)["reference_max_deformation_m"]
+    assert nominal != values[0]
+
+
+def test_compare_writes_its_folder_and_replaces_an_earlier_one(tmp_path, capsys):
+    out = tmp_path / "comparison"
+    args = ["compare", "--controllers", "pid", "--scenarios", "condition-3", "--seeds", "1", "--duration", "0.3"]
+    for _ in range(2):
+        assert main([*args, "--out", str(out), "--quiet"]) == 0
+    assert "| pid |" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["comparison.json", "comparison.md", "metrics.png", "x_landing.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["comparison"]
+
+
+def test_train_and_resume_from_the_command_line(tmp_path, capsys):
+    import yaml
+
+    entry = yaml.safe_load((REPO / "training" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
+    entry |= {"n_envs": 1, "n_steps": 64, "batch_size": 64, "n_epochs": 1, "policy_kwargs": "dict(net_arch=[8])"}
+    conf = tmp_path / "ppo.yml"
+    conf.write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
+    common = ["--eval-freq", "64", "--eval-episodes", "1", "--checkpoint-freq", "64", "--quiet"]
+    logs = tmp_path / "new" / "logs"  # missing parents are made
+    args = ["train", "-conf", str(conf), "--timesteps", "64", "--log-folder", str(logs), *common]
+    assert main(args) == 0
+    run = logs / "ppo" / "MicroGravityLanding-v1_1"
+    out = capsys.readouterr().out
+    assert f"wrote {run}" in out
+    assert "eval at 64 steps" in out
+    assert main(["train", "--resume", str(run), "--timesteps", "128", *common]) == 0
+    latest = json.loads((run / "checkpoints" / "latest.json").read_text())
+    assert latest["timesteps"] == 128
+    args_file = (run / "args.yml").read_text()
+    assert "--timesteps 64" in args_file  # the command that started the run
+    card = json.loads((run / "policy" / "policy.json").read_text())
+    assert card["command"].startswith("microg train")

@@ -113,3 +113,39 @@ def test_pid_dom_meets_the_same_targets():
     assert metrics.termination_reason is None
     assert 0.5e-4 <= metrics.microgravity_level_g[0] <= 1.5e-4
     assert metrics.max_deformation_m == pytest.approx(metrics.reference_max_deformation_m, rel=0.03)
+
+
+class _Sealed(dict):
+    """An info dictionary a controller may pass on but never read."""
+
+    def __getitem__(self, key):
+        raise AssertionError(f"the controller read info[{key!r}]: the simulator's truth")
+
+    get = __getitem__
+
+
+@pytest.mark.parametrize("name", ["pid", "pid-dom", "feedforward"])
+def test_baselines_read_only_the_observation(name):
+    env = MicroGravityLandingEnv(condition=2)
+    controller = make_controller(name, env.control_period_s)
+    observation, _ = env.reset(seed=0)
+    controller.reset()
+    for _ in range(200):
+        observation, *_ = env.step(controller(observation, _Sealed()))
+
+
+def test_feedforward_follows_a_setpoint_and_resets():
+    env = MicroGravityLandingEnv(condition=2)
+    controller = make_controller("feedforward", env.control_period_s)
+    observation, info = env.reset(seed=0)
+    controller.reset()
+    controller.setpoint_m = 1e-6
+    xs = []
+    for _ in range(1500):
+        observation, _, _, _, info = env.step(controller(observation, info))
+        xs.append(info["x_m"])
+    assert np.mean(xs[500:]) == pytest.approx(1e-6, abs=0.1e-6)
+    first = controller(observation, info)
+    controller.reset()
+    assert controller.setpoint_m == 0.0  # a new episode holds x at 0 again
+    assert controller(observation, info) != first  # and its estimator restarts from this observation

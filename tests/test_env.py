@@ -1,6 +1,7 @@
 """The Gymnasium environment: conformance, determinism, copies, vectorisation, bad input, failures."""
 
 import copy
+import itertools
 import os
 import pickle
 import subprocess
@@ -17,7 +18,8 @@ from microg_env import Imperfections, LoadStep, Scenario
 from microg_env.envs.landing import OBSERVATION_SCALES, MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
 
-ENV_ID = "microg_env:MicroGravityLanding-v0"
+ENV_ID = "microg_env:MicroGravityLanding-v1"
+CONDITIONS_1 = Scenario("condition 1", (LoadStep(0.49),), descent_height_m=0.09)
 
 
 def _rollout(env: gym.Env, seed: int | None, steps: int, action: float = 0.1) -> tuple[np.ndarray, list[dict]]:
@@ -127,7 +129,7 @@ def test_episode_is_truncated_at_the_scenario_duration_at_any_period():
 def test_starts_balanced_and_places_loads_on_schedule():
     env = MicroGravityLandingEnv(condition=3, imperfections=Imperfections.none())
     from microg_env.analysis.evaluate import run_episode
-    from microg_env.controllers.pid import make_controller
+    from microg_env.controllers import make_controller
 
     trajectory = run_episode(env, make_controller("pid", env.control_period_s), seed=0, duration_s=11.0)
     assert trajectory.foot_height_m[0] == pytest.approx(0.055, abs=1e-12)
@@ -149,6 +151,7 @@ def test_observation_is_the_sensors_scaled():
     assert obs[4] * scales["lander_accel"] == pytest.approx(-0.49 * 9.8009 / 620.49, rel=1e-3)
     obs, _, _, _, info = env.step(np.array([0.2], dtype=np.float32))
     assert obs[8] == pytest.approx(0.2)
+    assert obs[9] == 0.0  # no base controller in speed mode
 
 
 def test_sensor_noise_and_quantisation():
@@ -162,16 +165,88 @@ def test_sensor_noise_and_quantisation():
     assert 0 < np.std(ruler - truth) < 5 * sensors.ruler_noise_m
 
 
-def test_reward_is_the_compensation_error_with_action_rate_penalty():
+def test_reward_keeps_a_gradient_from_millimetres_to_nanometres_and_never_pays_for_ending():
+    from microg_env.envs.landing import x_reward
+
+    limit = 0.0249
+    rewards = [x_reward(x, 1e-8, limit) for x in (0.0, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, limit)]
+    assert rewards[0] == 1.0
+    assert rewards[-1] == pytest.approx(0.0, abs=1e-12)
+    assert all(a > b for a, b in itertools.pairwise(rewards))  # strictly better the smaller x
+    decades = np.diff(rewards[3:9])  # 1e-7 ... 1e-2: the same step per decade
+    np.testing.assert_allclose(decades, decades[0], rtol=0.02)
+    assert min(rewards) >= 0.0  # ending early forgoes reward, never gains it
     env = MicroGravityLandingEnv(condition=1, imperfections=Imperfections.none())
     env.reset(seed=0)
     _, reward, _, _, info = env.step(np.array([0.0], dtype=np.float32))
-    assert reward == pytest.approx(info["reward_compensation"] + info["reward_action_rate"])
-    expected_error = info["support_force_deviation_n"] / (0.49 * 9.8009)
-    assert info["compensation_error"] == pytest.approx(expected_error)
-    assert info["reward_compensation"] == pytest.approx(np.exp(-((expected_error / 0.05) ** 2)))
-    _, _, _, _, info = env.step(np.array([0.5], dtype=np.float32))
-    assert info["reward_action_rate"] == pytest.approx(-0.1 * 0.25)
+    assert reward == pytest.approx(x_reward(info["x_m"], 1e-8, 0.025 - 1e-4))
+    assert reward == pytest.approx(info["reward_x"])
+
+
+def test_a_zero_residual_is_its_base_controller_exactly():
+    """action_mode="residual": an action of 0 leaves the base controller (here feedforward) alone."""
+    from microg_env.analysis.evaluate import run_episode
+    from microg_env.controllers import PolicyController, make_controller
+
+    class Zero:
+        def predict(self, observation, deterministic=True):
+            return np.zeros(1, dtype=np.float32), None
+
+    base = run_episode(
+        MicroGravityLandingEnv(condition=2), make_controller("feedforward", 1e-3), seed=3, duration_s=5.0
+    )
+    env = MicroGravityLandingEnv(condition=2, action_mode="residual", base_controller="feedforward")
+    residual = run_episode(env, PolicyController(Zero()), seed=3, duration_s=5.0)
+    np.testing.assert_array_equal(base.x_m, residual.x_m)
+    np.testing.assert_array_equal(base.command_m_s, residual.command_m_s)
+
+
+def test_a_residual_moves_the_base_controllers_setpoint():
+    env = MicroGravityLandingEnv(
+        condition=2, action_mode="residual", base_controller="feedforward", residual_limit_m=3e-6
+    )
+    env.reset(seed=0)
+    xs = []
+    for _ in range(1000):
+        _, _, _, _, info = env.step(np.array([0.5], dtype=np.float32))
+        xs.append(info["x_m"])
+    assert info["setpoint_m"] == pytest.approx(1.5e-6)
+    assert np.mean(xs[500:]) == pytest.approx(1.5e-6, abs=0.1e-6)  # the loop holds x at the setpoint
+
+
+def test_the_decision_period_holds_the_action_and_steps_the_control_periods():
+    env = MicroGravityLandingEnv(condition=1, decision_period=5, action_mode="residual", base_controller="pid")
+    _, info = env.reset(seed=0)
+    _, _, _, _, info = env.step(np.zeros(1, dtype=np.float32))
+    assert info["time_s"] == pytest.approx(5e-3)
+    scenario = Scenario("short", (LoadStep(0.49),), descent_height_m=0.09, duration_s=0.012)
+    env = MicroGravityLandingEnv(scenario=scenario, decision_period=5, action_mode="residual")
+    env.reset(seed=0)
+    steps = [env.step(np.zeros(1, dtype=np.float32)) for _ in range(3)]
+    assert [s[3] for s in steps] == [False, False, True]  # truncated inside the third decision
+    assert steps[-1][4]["time_s"] == pytest.approx(0.012)
+
+
+def test_training_schedules_are_drawn_at_reset_with_a_placement_and_a_touchdown():
+    from microg_env.scenarios import ScenarioSampler
+
+    env = gym.make(ENV_ID, scenario_sampler="training", domain_randomization=True)
+    for seed in range(5):
+        env.reset(seed=seed)
+        scenario = env.unwrapped.active_scenario
+        touchdown = scenario.ideal_touchdown_s(env.unwrapped.params.lander.mass_kg, 9.8009)
+        assert len(scenario.loads) == 2
+        assert scenario.loads[1].height_m is not None
+        assert touchdown <= ScenarioSampler().max_touchdown_s
+        assert scenario.duration_s == pytest.approx(touchdown + ScenarioSampler().after_touchdown_s, rel=0.06)
+    env.reset(seed=1)
+    first = env.unwrapped.active_scenario
+    env.reset(seed=1)
+    assert env.unwrapped.active_scenario == first
+    with pytest.raises(ValueError, match="scenario_sampler"):
+        MicroGravityLandingEnv(scenario=CONDITIONS_1, scenario_sampler="training")
+    with pytest.raises(ValueError, match="max_touchdown_s"):
+        MicroGravityLandingEnv(scenario_sampler={"descent_height_m": [0.05, 0.06], "max_touchdown_s": 1.0})
 
 
 def test_guide_stroke_limit_terminates_with_a_reason():
@@ -242,8 +317,15 @@ def test_bad_actions_raise(action):
         ({"control_period_s": 1.5e-4}, "whole number of physics steps"),
         ({"physics_step_s": 1e-9}, "physics_step_s"),
         ({"physics_step_s": 2e-3}, "physics_step_s"),
-        ({"compensation_scale": -1.0}, "compensation_scale"),
-        ({"compensation_scale": 1e-200}, "compensation_scale"),
+        ({"reward_scale_m": -1.0}, "reward_scale_m"),
+        ({"reward_scale_m": 1e-200}, "reward_scale_m"),
+        ({"decision_period": 0}, "decision_period"),
+        ({"action_mode": "torque"}, "action_mode"),
+        ({"base_controller": "lqr"}, "base_controller"),
+        ({"residual_limit_m": 1.0}, "residual_limit_m"),
+        ({"scenario_sampler": "testing"}, "scenario_sampler"),
+        ({"domain_randomization": {"pad_stiffness": 2.0}}, "pad_stiffness"),
+        ({"imperfections": {"friction": "yes"}}, "friction"),
         ({"condition": np.array(3)}, "condition"),
         ({"condition": [3]}, "condition"),
         ({"camera_name": ["side"]}, "camera_name"),
@@ -349,7 +431,7 @@ def test_every_parameter_passed_in_reaches_the_episode_the_model_and_the_referen
     from dataclasses import replace
 
     from microg_env.analysis.evaluate import reference_for, run_episode
-    from microg_env.controllers.pid import make_controller
+    from microg_env.controllers import make_controller
     from microg_env.params import LanderParams, PadParams, RigParams
 
     params = replace(RigParams(), pad=PadParams(stiffness_n_per_m=8000.0), lander=LanderParams(mass_kg=500.0))
@@ -406,7 +488,7 @@ def test_a_long_episode_made_by_id_runs_to_its_scenario_duration():
     scenario = Scenario("long", (LoadStep(0.49),), descent_height_m=0.09, duration_s=3.2)
     env = gym.make(ENV_ID, scenario=scenario, control_period_s=1e-4)
     from microg_env.analysis.evaluate import run_episode
-    from microg_env.controllers.pid import make_controller
+    from microg_env.controllers import make_controller
 
     trajectory = run_episode(env, make_controller("pid", 1e-4), seed=0)
     assert len(trajectory) - 1 == 32_000

@@ -11,7 +11,7 @@ from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.scenarios import CONDITIONS
 
-ENV_ID = "microg_env:MicroGravityLanding-v0"
+ENV_ID = "microg_env:MicroGravityLanding-v1"
 
 
 def test_the_harness_runs_the_env_users_have():

@@ -15,7 +15,7 @@ import pytest
 from microg_env import Imperfections
 from microg_env.analysis.evaluate import run_with_metrics
 from microg_env.analysis.metrics import MEASURED_METRICS, RunMetrics
-from microg_env.controllers.pid import PID, load_gains, make_controller
+from microg_env.controllers import PID, load_gains, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.params import PHYSICS_STEP_S, BalancerParams, QZSParams, RigParams
 from microg_env.scenarios import CONDITIONS
@@ -47,6 +47,16 @@ def test_ideal_rig_lands_as_the_ideal_microgravity_reference():
     lag = k / load_gains("pid").ki_per_s2
     expected = -100.0 * lag / (620.0 + 0.49 + lag)
     assert metrics.compensation_error_pct[0] == pytest.approx(expected, abs=0.05)
+
+
+def test_ideal_rig_with_the_feedforward_matches_the_reference_within_0_05_percent():
+    """What the PID's integral lag keeps from the ideal rig, the nominal model's feed-forward
+    removes: every imperfection off, |compensation error| <= 0.05 % and the peak deformation within
+    0.1 % of the ideal-microgravity reference."""
+    env = MicroGravityLandingEnv(condition=1, imperfections=Imperfections.none())
+    metrics = run_with_metrics(env, make_controller("feedforward", env.control_period_s), seed=0, duration_s=12.0)[2]
+    assert abs(metrics.compensation_error_pct[0]) <= 0.05
+    assert metrics.max_deformation_m == pytest.approx(metrics.reference_max_deformation_m, rel=1e-3)
 
 
 @pytest.mark.parametrize("condition", [1, 3])

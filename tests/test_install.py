@@ -40,6 +40,19 @@ def test_wheel_contains_the_mjcf(wheel):
         assert f"microg_env/mjcf/{name}" in names
 
 
+def test_wheel_contains_the_hyperparameters_and_the_shipped_policy(wheel):
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for name in ("ppo.yml", "sac.yml"):
+        assert f"microg_env/hyperparams/{name}" in names
+    shipped = sorted(p.name for p in (REPO / "microg_env" / "policies").glob("*/policy.json"))
+    assert shipped, "no policy is shipped"
+    for folder in (REPO / "microg_env" / "policies").iterdir():
+        if folder.is_dir():
+            for file in folder.iterdir():
+                if file.is_file():
+                    assert f"microg_env/policies/{folder.name}/{file.name}" in names
+
+
 def _fresh_venv(env_dir: Path, install: list[str], cwd: Path) -> Path:
     """A new virtual environment with ``pip install --no-deps --no-index <install>`` done first,
     then the running environment's packages borrowed for the dependencies; returns its bin folder."""
@@ -64,29 +77,31 @@ def _fresh_venv(env_dir: Path, install: list[str], cwd: Path) -> Path:
     return bindir
 
 
-def test_installed_wheel_builds_and_drops_from_another_folder(wheel, tmp_path):
+def test_installed_wheel_builds_drops_and_runs_the_shipped_policy_from_another_folder(wheel, tmp_path):
     env_dir = tmp_path / "venv"
     bindir = _fresh_venv(env_dir, [str(wheel)], tmp_path)
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    probe = subprocess.run(
-        [
-            str(bindir / "python"),
-            "-c",
-            "import microg_env; r = microg_env.build_rig(); print(microg_env.__file__, r.pad_contacts)",
-        ],
-        check=True,
-        capture_output=True,
-        text=True,
-        cwd=elsewhere,
-    )
-    location, contacts = probe.stdout.split()
+
+    def output(program: str, *args: str) -> str:
+        return subprocess.run(
+            [str(bindir / program), *args], check=True, capture_output=True, text=True, cwd=elsewhere
+        ).stdout
+
+    probe = "import microg_env; r = microg_env.build_rig(); print(microg_env.__file__, r.pad_contacts)"
+    location, contacts = output("python", "-c", probe).split()
     assert Path(location).is_relative_to(env_dir)
     assert int(contacts) > 0
-    drop = subprocess.run(
-        [str(bindir / "microg"), "drop", "--json"], check=True, capture_output=True, text=True, cwd=elsewhere
+    drop = json.loads(output("microg", "drop", "--json"))
+    assert abs(drop["contact_time_s"]["rel_error"]) < 0.01
+    # The shipped policy (numpy only, with its normalisation) and the packaged hyperparameters.
+    run = json.loads(output("microg", "run", "--controller", "residual-ppo", "--duration", "3", "--json"))
+    assert run["termination_reason"] is None
+    assert run["flexible_unit_excursion_free_fall_m"] < 1e-6  # the PID's is about 3 um
+    hyperparams = (
+        "from microg_env.learning.hyperparams import load; print(load('ppo', 'MicroGravityLanding-v1').n_envs)"
     )
-    assert abs(json.loads(drop.stdout)["contact_time_s"]["rel_error"]) < 0.01
+    assert output("python", "-c", hyperparams).strip() == "8"
 
 
 def _quick_start_main_command() -> str:

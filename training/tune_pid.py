@@ -32,7 +32,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from microg_env.analysis.evaluate import run_with_metrics
+from microg_env.analysis.evaluate import control_cost, run_with_metrics
 from microg_env.controllers import PID, PIDGains
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.params import PHYSICS_STEP_S, RigParams
@@ -46,16 +46,15 @@ BASE = PIDGains(kp_per_s=0.0, ki_per_s2=0.0, kd=0.0, derivative_filter_s=0.002, 
 
 def cost(gains: PIDGains, dom: bool, envs: list[MicroGravityLandingEnv]) -> tuple[float, float, float]:
     """(J, mean |compensation error| %, worst collision excursion um); J = inf if a run fails."""
-    errors, excursions = [], []
+    runs = []
     for env in envs:
         controller = PID(gains, env.control_period_s, derivative_on_measurement=dom)
-        _, _, metrics = run_with_metrics(env, controller, seed=0)
-        if metrics.termination_reason is not None or not all(map(math.isfinite, metrics.compensation_error_pct)):
+        runs.append(run_with_metrics(env, controller, seed=0)[2])
+        if runs[-1].termination_reason is not None:
             return math.inf, math.nan, math.nan
-        errors += [abs(e) for e in metrics.compensation_error_pct]
-        excursions.append(metrics.flexible_unit_excursion_collision_m * 1e6)
-    mean_error, excursion = float(np.mean(errors)), float(max(excursions))
-    return mean_error + excursion / 10.0, mean_error, excursion
+    errors = [abs(e) for run in runs for e in run.compensation_error_pct]
+    excursion = max(run.flexible_unit_excursion_collision_m for run in runs) * 1e6
+    return control_cost(runs), float(np.mean(errors)), excursion
 
 
 def robust(gains: PIDGains, dom: bool, envs: list[MicroGravityLandingEnv]) -> bool:

@@ -35,12 +35,14 @@ def run_episode(
     seed: int | None = None,
     duration_s: float | None = None,
     on_progress: Callable[[int], None] | None = None,
+    on_step: Callable[[gym.Env, dict], None] | None = None,
 ) -> Trajectory:
     """Reset ``env`` with ``seed`` and let ``controller`` drive it for ``duration_s`` (default and
     at most: the scenario's). Stops early when the episode terminates or is truncated.
 
     ``on_progress(steps)`` reports the steps run, every 1000 and, at the end, the rest of the
-    planned steps (so a progress bar ends full).
+    planned steps (so a progress bar ends full). ``on_step(env, info)`` sees the environment after
+    the reset and after every step (e.g. to render a video).
     """
     rig_env = _rig_env(env)
     scenario_duration = rig_env.scenario.duration_s
@@ -51,10 +53,14 @@ def run_episode(
     controller.reset()
     recorder = TrajectoryRecorder()
     recorder.append(info)
+    if on_step is not None:
+        on_step(env, info)
     reason, reported = None, 0
     for k in range(steps):
         obs, reward, terminated, truncated, info = env.step(controller(obs, info))
         recorder.append(info, reward)
+        if on_step is not None:
+            on_step(env, info)
         if on_progress is not None and (k + 1) % 1000 == 0:
             on_progress(1000)
             reported += 1000
@@ -79,10 +85,14 @@ def reference_for(env: gym.Env, trajectory: Trajectory) -> Trajectory:
 
 
 def run_with_metrics(
-    env: gym.Env, controller: Controller, seed: int | None = None, duration_s: float | None = None
+    env: gym.Env,
+    controller: Controller,
+    seed: int | None = None,
+    duration_s: float | None = None,
+    on_step: Callable[[gym.Env, dict], None] | None = None,
 ) -> tuple[Trajectory, Trajectory, RunMetrics]:
     """One episode, its ideal-microgravity reference (same lander, pad and loads) and its metrics."""
-    trajectory = run_episode(env, controller, seed, duration_s)
+    trajectory = run_episode(env, controller, seed, duration_s, on_step=on_step)
     reference = reference_for(env, trajectory)
     return trajectory, reference, compute_metrics(trajectory, reference)
 
@@ -103,6 +113,23 @@ def summarise(runs: Iterable[RunMetrics], quantity: Callable[[RunMetrics], float
     if finite.size == 0:
         return Summary(math.nan, math.nan, math.nan)
     return Summary(float(finite.mean()), float(finite.std()), float(worst(finite)))
+
+
+def control_cost(runs: Iterable[RunMetrics]) -> float:
+    """The cost controllers are tuned and selected by: J = mean |compensation error| [%] over the
+    load stages of ``runs`` long enough to measure (a second of free fall) + the worst
+    flexible-unit excursion at the collision [um] / 10 (the two headline figures of Section 3.2,
+    weighted so 0.1 % counts as 1 um). Infinite if a run ended at a limit or missed its collision,
+    or no stage could be measured."""
+    errors, excursions = [], []
+    for run in runs:
+        if run.termination_reason is not None:
+            return math.inf
+        errors += [abs(e) for e in run.compensation_error_pct if math.isfinite(e)]
+        excursions.append(run.flexible_unit_excursion_collision_m * 1e6)
+    if not errors or not all(map(math.isfinite, excursions)):
+        return math.inf
+    return float(np.mean(errors) + max(excursions) / 10.0)
 
 
 def evaluate(

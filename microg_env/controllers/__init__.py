@@ -1,7 +1,23 @@
 """Controllers behind one interface (:class:`Controller`): the baselines and learned policies."""
 
-from microg_env.controllers.base import Controller
-from microg_env.controllers.pid import CONTROLLER_NAMES, PID, PIDGains, load_gains, make_controller
-from microg_env.controllers.policy import PolicyController
+from microg_env.controllers.base import Controller, Readings, SetpointController
+from microg_env.controllers.feedforward import Feedforward
+from microg_env.controllers.pid import PID, PIDGains, load_gains
+from microg_env.controllers.policy import MLPPolicy, PolicyController, load_policy
+from microg_env.controllers.registry import BASELINES, CONTROLLER_NAMES, make_controller
 
-__all__ = ["CONTROLLER_NAMES", "PID", "Controller", "PIDGains", "PolicyController", "load_gains", "make_controller"]
+__all__ = [
+    "BASELINES",
+    "CONTROLLER_NAMES",
+    "PID",
+    "Controller",
+    "Feedforward",
+    "MLPPolicy",
+    "PIDGains",
+    "PolicyController",
+    "Readings",
+    "SetpointController",
+    "load_gains",
+    "load_policy",
+    "make_controller",
+]

@@ -2,13 +2,21 @@
 
 Every controller (the baselines and learned policies) reads only the observation, what the rig's
 sensors give, never the simulator's truth, so that they are compared on equal terms by one harness.
+:class:`Readings` decodes an observation into SI units. A controller that closes its loop on x
+may take a setpoint (:class:`SetpointController`): the residual mode of the environment moves it.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
+
+from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES
+
+#: Drive speed that the action +-1 stands for, m/s (Section 4.1).
+MAX_SPEED_M_S = 1.25
 
 
 class Controller(Protocol):
@@ -19,3 +27,44 @@ class Controller(Protocol):
 
     def __call__(self, observation: np.ndarray, info: dict[str, Any]) -> np.ndarray:
         """The action for this observation, shape (1,), in [-1, 1]."""
+
+
+class SetpointController(Controller, Protocol):
+    """A controller holding x at ``setpoint_m`` (0 for the rig's purpose, x = 0)."""
+
+    setpoint_m: float
+
+
+@dataclass(frozen=True)
+class Readings:
+    """An observation in SI units (OBSERVATION_SCALES)."""
+
+    x_m: float  # grating ruler
+    x_rate_m_s: float
+    support_position_m: float  # servo encoder, above touchdown
+    support_velocity_m_s: float
+    lander_accel_m_s2: float  # accelerometer, g removed, up positive
+    pad_force_n: float
+    foot_height_m: float
+    placed_load_kg: float
+
+    @classmethod
+    def of(cls, observation: np.ndarray) -> Readings:
+        def get(name: str) -> float:
+            return float(observation[OBSERVATION_INDEX[name]]) * OBSERVATION_SCALES[name]
+
+        return cls(
+            get("x"),
+            get("x_rate"),
+            get("support_position"),
+            get("support_velocity"),
+            get("lander_accel"),
+            get("pad_force"),
+            get("height"),
+            get("placed_load"),
+        )
+
+
+def speed_action(speed_m_s: float) -> np.ndarray:
+    """The action commanding ``speed_m_s``, clipped to the drive's range."""
+    return np.array([min(max(speed_m_s / MAX_SPEED_M_S, -1.0), 1.0)], dtype=np.float32)

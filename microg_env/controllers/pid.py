@@ -10,6 +10,8 @@ conditional-integration anti-windup. Two derivative terms are offered:
   The setpoint of the support position is the lander's position (the "given value") and the
   controlled variable is the support's own position, so D = -Kd dz_support/dt (servo encoder):
   the jump of the lander's velocity at impact no longer kicks the command.
+
+The loop holds x at ``setpoint_m`` (0: the rig's purpose); the environment's residual mode moves it.
 """
 
 from __future__ import annotations
@@ -22,15 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from microg_env.envs.landing import OBSERVATION_INDEX, OBSERVATION_SCALES
+from microg_env.controllers.base import MAX_SPEED_M_S, Readings
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
-
-#: Drive speed that the action +-1 stands for, m/s (Section 4.1).
-MAX_SPEED_M_S = 1.25
 
 
 @dataclass(frozen=True)
@@ -50,13 +49,18 @@ class PIDGains:
                 raise ValueError(f"PIDGains.{f.name} must be a finite number >= 0, got {value!r}")
 
 
-def load_gains(name: str) -> PIDGains:
-    """The tuned gains of controller ``name`` ("pid" or "pid-dom") from config/controllers.toml."""
+def controller_config(name: str) -> dict[str, Any]:
+    """The tuned settings of controller ``name`` from config/controllers.toml."""
     text = resources.files("microg_env").joinpath("config", "controllers.toml").read_text(encoding="utf-8")
     table = tomllib.loads(text)
     if name not in table:
-        raise ValueError(f"no gains for controller {name!r}; known: {', '.join(sorted(table))}")
-    entry = table[name]
+        raise ValueError(f"no settings for controller {name!r}; known: {', '.join(sorted(table))}")
+    return table[name]
+
+
+def load_gains(name: str) -> PIDGains:
+    """The tuned PID gains of controller ``name`` ("pid" or "pid-dom")."""
+    entry = controller_config(name)
     return PIDGains(**{f.name: float(entry[f.name]) for f in fields(PIDGains)})
 
 
@@ -73,37 +77,23 @@ class PID:
     def reset(self) -> None:
         self._integral = 0.0
         self._derivative = 0.0
+        self.setpoint_m = 0.0
 
     def __call__(self, observation: np.ndarray, info: dict[str, Any]) -> np.ndarray:
+        readings = Readings.of(observation)
+        return np.array([self.command(readings) / MAX_SPEED_M_S], dtype=np.float32)
+
+    def command(self, readings: Readings, bias_m_s: float = 0.0) -> float:
+        """The speed command, m/s, for these readings; ``bias_m_s`` (a feed-forward) is added inside
+        the saturation, so the anti-windup sees the whole command."""
         g = self.gains
-        x = float(observation[_X]) * _X_SCALE
-        if self.derivative_on_measurement:
-            rate = -float(observation[_SUPPORT_VELOCITY]) * _SUPPORT_VELOCITY_SCALE
-        else:
-            rate = float(observation[_X_RATE]) * _X_RATE_SCALE
+        error = readings.x_m - self.setpoint_m
+        rate = -readings.support_velocity_m_s if self.derivative_on_measurement else readings.x_rate_m_s
         self._derivative += self._alpha * (rate - self._derivative)
-        integral = self._integral + g.ki_per_s2 * x * self.control_period_s
+        integral = self._integral + g.ki_per_s2 * error * self.control_period_s
         integral = min(max(integral, -g.integral_limit_m_s), g.integral_limit_m_s)
-        command = g.kp_per_s * x + integral + g.kd * self._derivative
+        command = bias_m_s + g.kp_per_s * error + integral + g.kd * self._derivative
         # Conditional integration: do not wind the integral further into a saturated command.
-        if abs(command) <= MAX_SPEED_M_S or (command > 0) != (x > 0):
+        if abs(command) <= MAX_SPEED_M_S or (command > 0) != (error > 0):
             self._integral = integral
-        command = min(max(command, -MAX_SPEED_M_S), MAX_SPEED_M_S)
-        return np.array([command / MAX_SPEED_M_S], dtype=np.float32)
-
-
-#: Controllers selectable by name in the CLI and the evaluation harness.
-CONTROLLER_NAMES = ("pid", "pid-dom")
-
-
-def make_controller(name: str, control_period_s: float) -> PID:
-    """The named baseline with its tuned gains."""
-    if name not in CONTROLLER_NAMES:
-        raise ValueError(f"controller must be one of {', '.join(CONTROLLER_NAMES)}, got {name!r}")
-    return PID(load_gains(name), control_period_s, derivative_on_measurement=name == "pid-dom")
-
-
-_X, _X_RATE = OBSERVATION_INDEX["x"], OBSERVATION_INDEX["x_rate"]
-_SUPPORT_VELOCITY = OBSERVATION_INDEX["support_velocity"]
-_X_SCALE, _X_RATE_SCALE = OBSERVATION_SCALES["x"], OBSERVATION_SCALES["x_rate"]
-_SUPPORT_VELOCITY_SCALE = OBSERVATION_SCALES["support_velocity"]
+        return min(max(command, -MAX_SPEED_M_S), MAX_SPEED_M_S)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -16,33 +17,38 @@ from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
 from microg_env import scenarios, validate
+from microg_env.controllers.base import MAX_SPEED_M_S, SetpointController
+from microg_env.controllers.policy import RESIDUAL_LIMIT_M
+from microg_env.controllers.registry import BASELINES, make_controller
+from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES, SCALES
 from microg_env.imperfections import DomainRandomization, Imperfections, apply_imperfections
 from microg_env.params import CONTROL_PERIOD_RANGE_S, MAX_CONTROL_STEPS, PHYSICS_STEP_S, RigParams
-from microg_env.scenarios import LoadStep, Scenario
+from microg_env.scenarios import LoadStep, Scenario, ScenarioSampler
 from microg_env.sim.limits import check_pad
 from microg_env.sim.model import Rig, build_rig, check_physics_step, flexible_unit, validate_loads
 from microg_env.sim.sensors import SensorModel, backward_difference
 
-#: Observation entries and the scale each is divided by (SI units / scale = order one).
-OBSERVATION_SCALES: dict[str, float] = {
-    "x": 1e-4,  # grating ruler, m (100 um)
-    "x_rate": 1e-3,  # its backward difference, m/s
-    "support_position": 0.1,  # servo encoder, m above touchdown
-    "support_velocity": 0.1,  # encoder backward difference, m/s
-    "lander_accel": 0.1,  # accelerometer with g removed, m/s^2 (up positive)
-    "pad_force": 100.0,  # pad force sensor, N
-    "height": 0.1,  # foot height from encoder + ruler, m
-    "placed_load": 1.0,  # test weights placed so far, kg
-    "previous_action": 1.0,  # the action of the previous step
-}
-OBSERVATION_INDEX = {name: i for i, name in enumerate(OBSERVATION_SCALES)}
-_SCALES = np.array(list(OBSERVATION_SCALES.values()))
+__all__ = ["OBSERVATION_INDEX", "OBSERVATION_SCALES", "MicroGravityLandingEnv"]
+
 #: Margin before a stroke end (or the pad's full depth) at which the episode terminates, m.
 STOP_MARGIN_M = 1e-4
 #: Clearance the start height keeps above the pad and above every load's switch height, m.
 START_CLEARANCE_M = 1e-3
 #: Largest render size, pixels (MuJoCo's offscreen buffer is set by the model's offwidth/offheight).
 MAX_RENDER_PIXELS = 8192
+#: The actions the environment takes (``action_mode``).
+ACTION_MODES = ("speed", "residual")
+
+
+def x_reward(x_m: float, scale_m: float, limit_m: float) -> float:
+    """The reward for holding x: 1 - log(1 + (x/scale)^2) / log(1 + (limit/scale)^2).
+
+    In decades: it falls by the same amount for each decade that x grows, from ``scale`` (x's noise
+    floor) to ``limit`` (the guide's half stroke), so it keeps a gradient from millimetres down to
+    nanometres; it is 1 at x = 0 and 0 at the guide's end, never negative, so an episode that ends
+    early only forgoes what it would have earned.
+    """
+    return 1.0 - math.log1p((x_m / scale_m) ** 2) / math.log1p((limit_m / scale_m) ** 2)
 
 
 class MicroGravityLandingEnv(gym.Env):
@@ -53,19 +59,25 @@ class MicroGravityLandingEnv(gym.Env):
     support, which a servo screw stage (the "stroke amplifier") moves; a nitrogen balancer carries
     the support's load. While the relative displacement x = z_lander - z_support stays at 0 the
     support force is constant and a small test weight m makes the lander fall at m g / (M + m),
-    1e-3 to 1e-4 g, onto a soft rubber pad. The agent commands the stroke amplifier; every
+    1e-3 to 1e-4 g, onto a soft rubber pad. The agent drives the stroke amplifier; every
     micrometre of x it lets through is a 36 mN force error (5.7e-6 g). Episodes follow the paper's
-    test conditions (Table 2).
+    test conditions (Table 2), a custom schedule, or schedules drawn for training.
 
     ## Action Space
-    ``Box(-1, 1, (1,), float32)``: the servo drive's speed reference for the support, scaled to
-    +-1250 mm/s (the mechanism's maximum, Section 4.1), up positive. Out-of-range values are
-    clipped to [-1, 1]; NaN, infinite or wrongly shaped actions raise ``ValueError``. The drive
-    interpolates its position reference at that speed through the control period and closes its
-    own PI speed loop at every physics step.
+    ``Box(-1, 1, (1,), float32)``, held for ``decision_period`` control periods:
+
+    * ``action_mode="speed"`` (default): the servo drive's speed reference for the support, scaled
+      to +-1250 mm/s (the mechanism's maximum, Section 4.1), up positive;
+    * ``action_mode="residual"``: a setpoint for x, scaled to +-``residual_limit_m`` (1 um), on a
+      base controller (``base_controller``: ``pid``, ``pid-dom`` or ``feedforward``) that commands the
+      drive every control period from the latest observation. An action of 0 is the base controller.
+
+    Out-of-range values are clipped to [-1, 1]; NaN, infinite, non-numeric or wrongly shaped
+    actions raise ``ValueError``. The drive interpolates its position reference at the commanded
+    speed through the control period and closes its own PI speed loop at every physics step.
 
     ## Observation Space
-    ``Box(-inf, inf, (9,), float32)``, what the rig's sensors give, each divided by a scale
+    ``Box(-inf, inf, (10,), float32)``, what the rig's sensors give, each divided by a scale
     (``OBSERVATION_SCALES``) to be of order one:
 
     | index | observation | sensor | scale |
@@ -78,15 +90,15 @@ class MicroGravityLandingEnv(gym.Env):
     | 5 | pad contact force | pad force sensor (noisy) | 100 N |
     | 6 | foot height above the pad | encoder + ruler | 0.1 m |
     | 7 | test weights placed so far | load stage (known to the operator) | 1 kg |
-    | 8 | previous action | - | 1 |
+    | 8 | the agent's previous action | - | 1 |
+    | 9 | the base controller's speed command (residual mode; 0 otherwise) | - | 1.25 m/s |
 
     ## Rewards
-    ``reward = reward_compensation + reward_action_rate`` with
-    ``reward_compensation = exp(-(e / compensation_scale)^2)``, e = dF / (m_ref g) the
-    gravity-compensation error: dF is the deviation of the support force on the lander from its
-    balanced value, caused by x (and by balancer drift when the balancer acts on the lander), and
-    m_ref the test weight placed (the first weight's before any is placed); and
-    ``reward_action_rate = -action_rate_weight * (a_t - a_{t-1})^2``. A step is worth at most 1.
+    Per control period, ``x_reward(x) = 1 - log(1 + (x/x0)^2) / log(1 + (x_max/x0)^2)`` with x the
+    true relative displacement, x0 = ``reward_scale_m`` (10 nm, twice the ruler's step) and x_max
+    the guide's half stroke: it falls by the same amount for every decade of x, from nanometres to
+    millimetres, and lies in [0, 1]. A step's reward is its mean over the control periods it spans.
+    Never negative, it never makes ending an episode pay. ``info["reward_x"]`` holds it.
 
     ## Starting State
     Balanced at rest with the foot at the scenario's descent height, plus a uniform perturbation
@@ -98,36 +110,47 @@ class MicroGravityLandingEnv(gym.Env):
     ## Episode End
     Terminated when x reaches the 50 mm guide stroke, the support the screw's 480 mm stroke, or
     the foot the pad's full depth (it bottoms out on the floor); ``info["termination_reason"]``
-    names which. Truncated when the scenario's duration (30 s for the paper's conditions) is
-    reached, at any control period.
+    names which. Truncated when the episode's scenario duration is reached (30 s for the paper's
+    conditions), at any control period.
 
     ## Arguments
-    ``gym.make("microg_env:MicroGravityLanding-v0", **kwargs)`` with
+    ``gym.make("microg_env:MicroGravityLanding-v1", **kwargs)`` with
 
     | argument | default | meaning |
     |---|---|---|
-    | ``condition`` | 1 | the paper's condition 1, 2 or 3 (ignored when ``scenario`` is given) |
+    | ``condition`` | 1 | the paper's condition 1, 2 or 3 (unless ``scenario`` or ``scenario_sampler`` is given) |
     | ``scenario`` | None | a custom ``Scenario`` (load schedule, descent height, duration, overrides) |
+    | ``scenario_sampler`` | None | a ``ScenarioSampler`` ("training", or its fields as a dict): a schedule per reset |
     | ``control_period_s`` | 1e-3 | control period: the paper's 1000, 500, 200 or 100 us, up to 10 ms |
     | ``physics_step_s`` | 1e-4 | physics step; it must divide the control period |
-    | ``imperfections`` | ``Imperfections()`` | which non-ideal effects are on (all by default) |
-    | ``domain_randomization`` | None | a ``DomainRandomization`` to perturb rig and load at each reset |
+    | ``decision_period`` | 1 | control periods an action is held (the base controller still runs every one) |
+    | ``action_mode`` | ``"speed"`` | ``"speed"`` or ``"residual"`` (see Action Space) |
+    | ``base_controller`` | ``"pid"`` | the controller a residual action moves the setpoint of |
+    | ``residual_limit_m`` | 1e-6 | the setpoint an action of +-1 stands for, m |
+    | ``imperfections`` | ``Imperfections()`` | which non-ideal effects are on (or their flags as a dict) |
+    | ``domain_randomization`` | None | a ``DomainRandomization`` (``True``: its defaults; or its fields as a dict) |
     | ``params`` | ``RigParams()`` | the rig (the scenario's explicit overrides are applied on top) |
     | ``xml_file`` | None | an MJCF template other than the packaged ``scene.xml`` |
-    | ``compensation_scale`` | 0.05 | relative compensation error that costs a factor e in reward |
-    | ``action_rate_weight`` | 0.1 | weight of the action-rate penalty |
+    | ``reward_scale_m`` | 1e-8 | x0 of the reward, m |
     | ``reset_noise_scale`` | 0.0 | half-width of the start-height perturbation, m |
     | ``render_mode``, ``width``, ``height``, ``camera_name`` | None, 640, 480, "side" | rendering |
 
-    ``info`` carries the reward terms and the true physical state: ``time_s``, ``x_m``,
+    ``info`` carries the reward and the true physical state: ``time_s``, ``x_m``,
     ``foot_height_m``, ``lander_velocity_m_s``, ``lander_accel_m_s2``, ``support_position_m``,
-    ``support_velocity_m_s``, ``support_force_deviation_n``, ``pad_force_n``,
-    ``placed_load_kg``, ``stage``, ``command_m_s``, ``servo_torque_n_m``,
-    ``compensation_error``, ``reward_compensation``, ``reward_action_rate`` and
-    ``termination_reason``.
+    ``support_velocity_m_s``, ``support_force_deviation_n``, ``pad_force_n``, ``placed_load_kg``,
+    ``stage``, ``command_m_s`` (the speed command the drive received), ``setpoint_m``,
+    ``servo_torque_n_m``, ``compensation_error``, ``reward_x`` and ``termination_reason``.
 
     Copies (``pickle``, ``cloudpickle``, ``copy.deepcopy``) carry the episode: a copy made mid-episode
     continues exactly as the original would.
+
+    ## Version History
+    * v1: the reward in decades of x (never negative; v0's exp(-(e/0.05)^2) was flat beyond a few
+      micrometres and its action-rate penalty made ending pay); the residual action mode on a named
+      base controller and the decision period; training schedules drawn at reset; an observation
+      entry for the base command; the corrected rig of microg 0.2 (interpolated drive reference,
+      converged physics step, LuGre guide friction, Eq. 17 read literally, balancer on the support).
+    * v0: microg 0.1, a speed action, a compensation-error reward with an action-rate penalty.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 1000}
@@ -136,45 +159,41 @@ class MicroGravityLandingEnv(gym.Env):
         self,
         condition: int = 1,
         scenario: Scenario | None = None,
+        scenario_sampler: ScenarioSampler | str | Mapping | None = None,
         control_period_s: float = 1e-3,
         physics_step_s: float = PHYSICS_STEP_S,
-        imperfections: Imperfections | None = None,
-        domain_randomization: DomainRandomization | None = None,
+        decision_period: int = 1,
+        action_mode: str = "speed",
+        base_controller: str = "pid",
+        residual_limit_m: float = RESIDUAL_LIMIT_M,
+        imperfections: Imperfections | Mapping | None = None,
+        domain_randomization: DomainRandomization | Mapping | bool | None = None,
         params: RigParams | None = None,
         xml_file: str | None = None,
-        compensation_scale: float = 0.05,
-        action_rate_weight: float = 0.1,
+        reward_scale_m: float = 1e-8,
         reset_noise_scale: float = 0.0,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
         camera_name: str = "side",
     ) -> None:
+        self.scenario_sampler = _sampler(scenario_sampler)
+        if self.scenario_sampler is not None and scenario is not None:
+            raise ValueError("give scenario or scenario_sampler, not both")
         self.scenario = scenarios.condition(condition) if scenario is None else scenario
         validate.instance("scenario", self.scenario, Scenario)
-        self.imperfections = Imperfections() if imperfections is None else imperfections
-        validate.instance("imperfections", self.imperfections, Imperfections)
-        if domain_randomization is not None:
-            validate.instance("domain_randomization", domain_randomization, DomainRandomization)
-        self.domain_randomization = domain_randomization
+        self.imperfections = _imperfections(imperfections)
+        self.domain_randomization = _randomization(domain_randomization)
         self.base_params = RigParams() if params is None else params
         validate.instance("params", self.base_params, RigParams)
         self.physics_step_s = check_physics_step(physics_step_s)
         self.control_period_s = _check_control_period(control_period_s, self.physics_step_s)
         self.frame_skip = round(self.control_period_s / self.physics_step_s)
-        self._max_steps = round(self.scenario.duration_s / self.control_period_s)
-        if self._max_steps < 1:
-            raise ValueError(
-                f"Scenario.duration_s {self.scenario.duration_s:g} s is shorter than one control period "
-                f"({self.control_period_s:g} s)"
-            )
-        if self._max_steps > MAX_CONTROL_STEPS:
-            raise ValueError(
-                f"Scenario.duration_s {self.scenario.duration_s:g} s at control_period_s {self.control_period_s:g} s "
-                f"is {self._max_steps} control steps, more than the {MAX_CONTROL_STEPS} one run may take"
-            )
-        self.compensation_scale = validate.between("compensation_scale", compensation_scale, 1e-9, 1e3)
-        self.action_rate_weight = validate.non_negative("action_rate_weight", action_rate_weight, upper=1e6)
+        self.decision_period = validate.integer("decision_period", decision_period, 1, 1000)
+        self.action_mode = validate.choice("action_mode", action_mode, ACTION_MODES)
+        self.base_controller = validate.choice("base_controller", base_controller, BASELINES)
+        self.residual_limit_m = validate.positive("residual_limit_m", residual_limit_m, "m", 1e-3)
+        self.reward_scale_m = validate.between("reward_scale_m", reward_scale_m, 1e-12, 1e-3, "m")
         self.reset_noise_scale = _check_reset_noise(reset_noise_scale, self.scenario)
         if render_mode is not None:
             validate.choice("render_mode", render_mode, tuple(self.metadata["render_modes"]))
@@ -196,13 +215,17 @@ class MicroGravityLandingEnv(gym.Env):
         self._human_every = max(1, round(1.0 / (60.0 * self.control_period_s)))
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(len(_SCALES),), dtype=np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(len(SCALES),), dtype=np.float32)
 
         params = apply_imperfections(self.scenario.rig_params(self.base_params), self.imperfections)
-        self._check_scenario_fits(params)
+        schedules = (self.scenario,)
+        if self.scenario_sampler is not None:
+            schedules = self.scenario_sampler.extremes(params.lander.mass_kg, params.gravity_m_s2)
+        for schedule in schedules:
+            self._check_scenario_fits(params, schedule)
         self.rig: Rig = build_rig(
             params,
-            self.scenario.loads_kg,
+            schedules[0].loads_kg,
             xml_file=self.xml_file,
             physics_step_s=self.physics_step_s,
             ideal_drive=not self.imperfections.servo_lag,
@@ -219,7 +242,6 @@ class MicroGravityLandingEnv(gym.Env):
         model = self.model
         self._accel_adr = int(model.sensor_adr[model.sensor("lander_accel").id]) + 2
         self._force_adr = int(model.sensor_adr[model.sensor("pad_force").id])
-        self._omega_per_action = params.screw.max_speed_m_per_s * self.rig.gear
         self._x_limit = params.qzs.stroke_m / 2.0 - STOP_MARGIN_M
         low, high = params.screw.range_m
         self._screw_limits = (low + STOP_MARGIN_M, high - STOP_MARGIN_M)
@@ -227,20 +249,33 @@ class MicroGravityLandingEnv(gym.Env):
         self._drift_dof = self.rig.screw_dof if params.balancer.placement == "frame_support" else self.rig.qzs_dof
         self._sensors = SensorModel(params, self.control_period_s, self.imperfections.sensor_noise)
         self._truth = np.zeros((4, 1))  # true sensor values, one rig (sim.sensors.SENSORS)
-        self._raw_observation = np.zeros(len(_SCALES))
+        self._raw_observation = np.zeros(len(SCALES))
+        self._base: SetpointController | None = None
+        if self.action_mode == "residual":
+            self._base = make_controller(self.base_controller, self.control_period_s)
         self.params = params  # the episode's rig (a draw of the domain randomisation, if any)
-        self.active_scenario = self.scenario  # the episode's schedule (with the drawn test weights)
+        self.active_scenario = schedules[0]  # the episode's schedule (drawn, with the drawn test weights)
         self._episode: dict[str, Any] | None = None  # None until the first reset
 
-    def _check_scenario_fits(self, params: RigParams) -> None:
-        """Reject, before any episode, a scenario the rig cannot run (named in the error)."""
-        scenario = self.scenario
+    def _check_scenario_fits(self, params: RigParams, scenario: Scenario) -> None:
+        """Reject, before any episode, a schedule the rig cannot run (named in the error)."""
         top = params.screw.range_m[1] - STOP_MARGIN_M - 0.01
         if scenario.descent_height_m + self.reset_noise_scale > top:
             noise = f" plus reset_noise_scale {self.reset_noise_scale!r} m" if self.reset_noise_scale else ""
             raise ValueError(
                 f"Scenario.descent_height_m {scenario.descent_height_m!r} m{noise} is above the screw's reach "
                 f"({top:.3f} m)"
+            )
+        steps = round(scenario.duration_s / self.control_period_s)
+        if steps < 1:
+            raise ValueError(
+                f"Scenario.duration_s {scenario.duration_s:g} s is shorter than one control period "
+                f"({self.control_period_s:g} s)"
+            )
+        if steps > MAX_CONTROL_STEPS:
+            raise ValueError(
+                f"Scenario.duration_s {scenario.duration_s:g} s at control_period_s {self.control_period_s:g} s "
+                f"is {steps} control steps, more than the {MAX_CONTROL_STEPS} one run may take"
             )
         g, mass, load = params.gravity_m_s2, params.lander.mass_kg, sum(scenario.loads_kg)
         validate_loads(scenario.loads_kg, mass)
@@ -269,23 +304,32 @@ class MicroGravityLandingEnv(gym.Env):
         self._episode = {
             "next_load": 0,
             "previous_action": 0.0,
+            "pending_command": 0.0,  # m/s, reaching the drive at the next period (control delay)
+            "command": 0.0,  # m/s, the command the drive last received
+            "base_command": 0.0,  # m/s, the base controller's last command (residual mode)
             "position_ref": float(self.data.ctrl[0]) if not self.rig.ideal_drive else 0.0,
             "steps": 0,
+            "max_steps": round(scenario.duration_s / self.control_period_s),
             "last_readings": None,
             "drift_n_per_s": unit.balancer_force_n * rate / params.drift.gas_temperature_k,
             "x_stiffness": unit.x_stiffness_n_per_m,
             "reference_weight_n": scenario.loads[0].mass_kg * params.gravity_m_s2,
         }
+        if self._base is not None:
+            self._base.reset()
         self._place_due_loads(height)
         mujoco.mj_forward(self.model, self.data)
-        obs = self._sense()
+        self._observation = self._sense()
+        self._info_now = self._info(None)
         if self.render_mode == "human":
             self.render()
-        return obs, self._info(0.0, self._support_force_deviation(), 0.0, 0.0, 0.0, None)
+        return self._observation, self._info_now
 
     def _draw_episode(self, rng: np.random.Generator) -> tuple[RigParams, Scenario, float, float]:
         """The episode's rig, schedule, start height and balancer drift rate (K/s), drawn and checked."""
         params, scenario = self.rig.params, self.scenario
+        if self.scenario_sampler is not None:
+            scenario = self.scenario_sampler.sample(rng, self.base_params.lander.mass_kg, self.base_params.gravity_m_s2)
         if self.domain_randomization is not None:
             drawn, loads = self.domain_randomization.sample(
                 self.scenario.rig_params(self.base_params), scenario.loads_kg, rng
@@ -305,35 +349,26 @@ class MicroGravityLandingEnv(gym.Env):
         if episode is None:
             raise ResetNeeded("call reset() before step()")
         value = _check_action(action)
-        data, rig = self.data, self.rig
-        command = episode["previous_action"] if self.imperfections.control_delay else value
-        omega = command * self._omega_per_action
-        data.qfrc_applied[self._drift_dof] = episode["drift_n_per_s"] * data.time
-        episode["position_ref"] = rig.drive(data, episode["position_ref"], omega, self.frame_skip)
-        episode["steps"] += 1
-        if episode["next_load"] < len(self.active_scenario.loads):
-            self._place_due_loads(rig.foot_height(data))
-
-        reward_action_rate = -self.action_rate_weight * (value - episode["previous_action"]) ** 2
-        episode["previous_action"] = value
-        obs = self._sense()
-        deviation = self._support_force_deviation()
-        error = deviation / episode["reference_weight_n"]
-        ratio = min(abs(error) / self.compensation_scale, 1e150)  # never overflows when squared
-        reward_compensation = math.exp(-(ratio**2))
-        reason = self._termination_reason()
-        info = self._info(
-            command * self.rig.params.screw.max_speed_m_per_s,
-            deviation,
-            error,
-            reward_compensation,
-            reward_action_rate,
-            reason,
-        )
-        truncated = reason is None and episode["steps"] >= self._max_steps
-        if self.render_mode == "human" and episode["steps"] % self._human_every == 0:
-            self.render()
-        return obs, reward_compensation + reward_action_rate, reason is not None, truncated, info
+        if self._base is not None:
+            self._base.setpoint_m = value * self.residual_limit_m
+        total, periods, reason, truncated = 0.0, 0, None, False
+        for _ in range(self.decision_period):
+            if self._base is None:
+                command = value * MAX_SPEED_M_S
+            else:
+                command = float(self._base(self._observation, self._info_now)[0]) * MAX_SPEED_M_S
+                episode["base_command"] = command
+            reward, reason = self._control_period(command)
+            episode["previous_action"] = value
+            self._observation = self._sense()
+            self._info_now = self._info(reason)
+            total, periods = total + reward, periods + 1
+            truncated = reason is None and episode["steps"] >= episode["max_steps"]
+            if self.render_mode == "human" and episode["steps"] % self._human_every == 0:
+                self.render()
+            if reason is not None or truncated:
+                break
+        return self._observation, total / periods, reason is not None, truncated, self._info_now
 
     def render(self):
         if self.render_mode is None:
@@ -364,6 +399,22 @@ class MicroGravityLandingEnv(gym.Env):
         self.rig.model = self.model  # one model for the rig and the environment, as built
 
     # -- internals ---------------------------------------------------------------------------
+
+    def _control_period(self, command_m_s: float) -> tuple[float, str | None]:
+        """Advance one control period with the drive taking ``command_m_s`` (after the delay, if on);
+        returns the period's reward and a termination reason, if any."""
+        episode, data, rig = self._episode, self.data, self.rig
+        command = min(max(command_m_s, -MAX_SPEED_M_S), MAX_SPEED_M_S)
+        if self.imperfections.control_delay:
+            command, episode["pending_command"] = episode["pending_command"], command
+        episode["command"] = command
+        data.qfrc_applied[self._drift_dof] = episode["drift_n_per_s"] * data.time
+        episode["position_ref"] = rig.drive(data, episode["position_ref"], command * rig.gear, self.frame_skip)
+        episode["steps"] += 1
+        if episode["next_load"] < len(self.active_scenario.loads):
+            self._place_due_loads(rig.foot_height(data))
+        reward = x_reward(float(data.qpos[rig.qzs_qpos]), self.reward_scale_m, self._x_limit)
+        return reward, self._termination_reason()
 
     def _place_due_loads(self, height: float) -> None:
         episode, scenario = self._episode, self.active_scenario
@@ -408,22 +459,16 @@ class MicroGravityLandingEnv(gym.Env):
         raw = self._raw_observation
         raw[0], raw[1], raw[2], raw[3] = readings[0, 0], rates[0, 0], readings[1, 0], rates[1, 0]
         raw[4], raw[5], raw[6] = readings[2, 0], readings[3, 0], readings[1, 0] + readings[0, 0]
-        raw[7], raw[8] = rig.placed_load_kg, episode["previous_action"]
-        return (raw / _SCALES).astype(np.float32)
+        raw[7], raw[8], raw[9] = rig.placed_load_kg, episode["previous_action"], episode["base_command"]
+        return (raw / SCALES).astype(np.float32)
 
-    def _info(
-        self,
-        command: float,
-        deviation: float,
-        error: float,
-        reward_compensation: float,
-        reward_action_rate: float,
-        reason: str | None,
-    ) -> dict[str, Any]:
-        data, rig = self.data, self.rig
+    def _info(self, reason: str | None) -> dict[str, Any]:
+        data, rig, episode = self.data, self.rig, self._episode
+        x = float(data.qpos[rig.qzs_qpos])
+        deviation = self._support_force_deviation()
         return {
             "time_s": float(data.time),
-            "x_m": float(data.qpos[rig.qzs_qpos]),
+            "x_m": x,
             "foot_height_m": rig.foot_height(data),
             "lander_velocity_m_s": rig.lander_velocity(data),
             "lander_accel_m_s2": float(data.qacc[rig.screw_dof] + data.qacc[rig.qzs_dof]),
@@ -432,14 +477,42 @@ class MicroGravityLandingEnv(gym.Env):
             "support_force_deviation_n": deviation,
             "pad_force_n": float(data.sensordata[self._force_adr]),
             "placed_load_kg": rig.placed_load_kg,
-            "stage": self._episode["next_load"] - 1,
-            "command_m_s": command,
+            "stage": episode["next_load"] - 1,
+            "command_m_s": episode["command"],
+            "setpoint_m": self._base.setpoint_m if self._base is not None else 0.0,
             "servo_torque_n_m": float(data.actuator_force[0]),
-            "compensation_error": float(error),
-            "reward_compensation": reward_compensation,
-            "reward_action_rate": reward_action_rate,
+            "compensation_error": deviation / episode["reference_weight_n"],
+            "reward_x": x_reward(x, self.reward_scale_m, self._x_limit),
             "termination_reason": reason,
         }
+
+
+def _sampler(value: ScenarioSampler | str | Mapping | None) -> ScenarioSampler | None:
+    if value is None or isinstance(value, ScenarioSampler):
+        return value
+    if value == "training":
+        return ScenarioSampler()
+    if isinstance(value, Mapping):
+        return ScenarioSampler(**{k: tuple(v) if isinstance(v, list) else v for k, v in value.items()})
+    raise ValueError(f"scenario_sampler must be a ScenarioSampler, 'training' or a dict, got {value!r}")
+
+
+def _imperfections(value: Imperfections | Mapping | None) -> Imperfections:
+    if value is None:
+        return Imperfections()
+    if isinstance(value, Mapping):
+        return Imperfections(**value)
+    return validate.instance("imperfections", value, Imperfections)
+
+
+def _randomization(value: DomainRandomization | Mapping | bool | None) -> DomainRandomization | None:
+    if value is None or value is False:
+        return None
+    if value is True:
+        return DomainRandomization()
+    if isinstance(value, Mapping):
+        return DomainRandomization(**value)
+    return validate.instance("domain_randomization", value, DomainRandomization)
 
 
 def _check_control_period(control_period_s: float, physics_step_s: float) -> float:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import mujoco
@@ -21,7 +20,7 @@ from microg_env.analysis.metrics import contacts
 from microg_env.analysis.plots import figure_class, save_figure
 from microg_env.analysis.trajectory import Trajectory
 from microg_env.controllers import load_gains
-from microg_env.files import check_name_length, recover_folder, replace_folder
+from microg_env.files import check_output_folder, replace_folder
 from microg_env.paper.previous import PID_GAINS_0_1, RELEASE_0_1, SCREW_TORQUE_0_1_N_M
 from microg_env.paper.reproduction import (
     DRIFT_SEEDS,
@@ -712,38 +711,8 @@ REPORT_FILES = frozenset({"report.md", "report.json", *FIGURES})
 
 
 def check_output(out: Path) -> None:
-    """Raise ValueError if ``out`` cannot take a report (before any work is done).
-
-    ``out`` must be new, empty or an earlier report, a real folder (not a link), and not the
-    working folder or one of its parents: it is replaced as a whole. A swap that a hard kill
-    interrupted earlier is finished or undone first (:func:`microg_env.files.recover_folder`).
-    """
-    text = str(out)
-    if not text.strip():
-        raise ValueError("--out: the folder name is empty")
-    out = Path(os.path.abspath(text))
-    if Path.cwd().resolve().is_relative_to(out.resolve()):
-        raise ValueError(f"--out {text!r} is the working folder or one of its parents")
-    if out.is_symlink():
-        raise ValueError(f"--out {text!r} is a symbolic link; give the folder itself")
-    parent = out.parent
-    if not parent.is_dir():
-        raise ValueError(f"--out {text!r}: folder {str(parent)!r} does not exist")
-    check_name_length(out, "--out")
-    recover_folder(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {text!r} exists and is not a folder")
-    if out.is_dir():
-        others = sorted(p.name for p in out.iterdir() if p.name not in REPORT_FILES)
-        if others:
-            raise ValueError(
-                f"--out {text!r} holds files that are not a report ({', '.join(others[:3])}); "
-                "give a new folder, an empty one or an earlier report"
-            )
-    try:  # the one reliable writability test (root passes os.access on read-only file systems)
-        tempfile.TemporaryDirectory(dir=parent).cleanup()
-    except OSError as error:
-        raise ValueError(f"--out {text!r} is not writable ({error.strerror})") from None
+    """Raise ValueError if ``out`` cannot take a report (:func:`microg_env.files.check_output_folder`)."""
+    check_output_folder(out, "--out", REPORT_FILES, "a report")
 
 
 def write(rep: Reproduction, out: Path) -> Path:

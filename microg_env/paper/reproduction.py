@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 from microg_env.analysis.evaluate import reference_for, run_episode, run_with_metrics
 from microg_env.analysis.metrics import RunMetrics, compute_metrics
 from microg_env.analysis.trajectory import Trajectory
-from microg_env.controllers.pid import PID, load_gains, make_controller
+from microg_env.controllers import PID, load_gains, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.paper.calibration import Calibration, stored_calibration, with_pad
 from microg_env.params import BalancerParams, QZSParams, RigParams

@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 
 from microg_env import validate
+from microg_env.files import data_folder
 from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RigParams, parameter_paths
 from microg_env.sim.limits import check_integrable
 
@@ -55,11 +56,7 @@ EPISODE_PARAMETERS = frozenset(
 
 def mjcf_dir() -> Path:
     """Folder holding scene.xml: inside the installed package, or the repository's ``mjcf/``."""
-    package = Path(__file__).resolve().parents[1]
-    for candidate in (package / "mjcf", package.parent / "mjcf"):
-        if (candidate / "scene.xml").is_file():
-            return candidate
-    raise FileNotFoundError(f"scene.xml not found next to {package}; the package is incomplete")
+    return data_folder("mjcf", "mjcf", "scene.xml")
 
 
 def pad_contact_solref(

@@ -1,0 +1,242 @@
+"""Controllers compared on the same physics: every controller on the same scenarios and seeds.
+
+Each case (controller, scenario, seed) is one episode of ``MicroGravityLanding-v1`` with the
+speed action, every imperfection on and, with ``randomize``, the domain randomisation's plant
+drawn from the seed, so every controller meets the same plant, noise and drift. The scenarios are
+held out of training (:func:`microg_env.scenarios.comparison_scenarios`) and the seeds start at
+:data:`TEST_SEED`, above every training and validation seed. Cases run in parallel processes
+(``workers``); each returns its metrics and, for the first seed, x around the touchdown.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from microg_env import validate
+from microg_env.analysis.evaluate import Summary, run_with_metrics, summarise
+from microg_env.analysis.metrics import RunMetrics, contacts
+from microg_env.scenarios import Scenario, comparison_scenarios
+
+#: First test seed: training seeds its environments from 0 (``n_envs`` of them), validation from 500.
+TEST_SEED = 1000
+#: The window of x kept for the figure, s before and after the first touchdown.
+X_WINDOW_S = (-1.0, 3.0)
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """A compared metric: how to read it from a run, and how to show it."""
+
+    label: str
+    unit: str
+    scale: float  # SI value * scale = shown value
+    of: Callable[[RunMetrics], float]
+
+
+def _mean_abs_stages(values: list[float]) -> float:
+    finite = [abs(v) for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
+def _deformation_error(run: RunMetrics) -> float:
+    return abs(run.max_deformation_m / run.reference_max_deformation_m - 1.0)
+
+
+#: What the comparison reports, all magnitudes (larger is worse), SI in the JSON.
+QUANTITIES: dict[str, Quantity] = {
+    "compensation_error": Quantity(
+        "compensation error (abs.)", "%", 1.0, lambda run: _mean_abs_stages(run.compensation_error_pct)
+    ),
+    "residual_gravity_g": Quantity(
+        "residual gravity error", "g", 1.0, lambda run: _mean_abs_stages(run.residual_gravity_g)
+    ),
+    "free_fall_excursion_m": Quantity("x in free fall", "um", 1e6, lambda run: run.flexible_unit_excursion_free_fall_m),
+    "collision_excursion_m": Quantity(
+        "x at the collision", "um", 1e6, lambda run: run.flexible_unit_excursion_collision_m
+    ),
+    "deformation_error": Quantity("peak deformation vs ideal", "%", 100.0, _deformation_error),
+}
+
+
+@dataclass(frozen=True)
+class Case:
+    """One episode of the comparison."""
+
+    controller: str
+    scenario: str
+    seed: int
+
+
+@dataclass(frozen=True)
+class CaseResult:
+    case: Case
+    metrics: RunMetrics
+    values: dict[str, float]  # QUANTITIES, SI (NaN where the run did not reach it)
+    x_window: tuple[np.ndarray, np.ndarray] | None = None  # (time from touchdown s, x m), first seed only
+
+    @property
+    def failed(self) -> bool:
+        return self.metrics.termination_reason is not None
+
+
+@dataclass(frozen=True)
+class _Job:
+    case: Case
+    scenario: Scenario
+    randomize: bool
+    control_period_s: float
+    duration_s: float | None
+    keep_x: bool
+
+
+def run_case(job: _Job) -> CaseResult:
+    """One case (a process pool's task; it builds its own environment and controller)."""
+    from microg_env.controllers.registry import make_controller
+    from microg_env.envs.landing import MicroGravityLandingEnv
+
+    env = MicroGravityLandingEnv(
+        scenario=job.scenario, control_period_s=job.control_period_s, domain_randomization=job.randomize or None
+    )
+    controller = make_controller(job.case.controller, job.control_period_s)
+    duration = None if job.duration_s is None else min(job.duration_s, job.scenario.duration_s)
+    trajectory, _, metrics = run_with_metrics(env, controller, seed=job.case.seed, duration_s=duration)
+    env.close()
+    window = None
+    found = contacts(trajectory)
+    if job.keep_x and found:
+        t = trajectory.time_s - trajectory.time_s[found[0].start]
+        keep = (t >= X_WINDOW_S[0]) & (t <= X_WINDOW_S[1])
+        window = (t[keep], trajectory.x_m[keep])
+    values = {name: float(quantity.of(metrics)) for name, quantity in QUANTITIES.items()}
+    return CaseResult(job.case, metrics, values, window)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Every case's result, and summaries over seeds and scenarios."""
+
+    controllers: tuple[str, ...]
+    scenarios: dict[str, Scenario]
+    seeds: tuple[int, ...]
+    randomize: bool
+    control_period_s: float
+    duration_s: float | None
+    results: list[CaseResult] = field(default_factory=list)
+
+    def runs(self, controller: str, scenario: str | None = None) -> list[CaseResult]:
+        return [
+            r
+            for r in self.results
+            if r.case.controller == controller and (scenario is None or r.case.scenario == scenario)
+        ]
+
+    def summary(self, controller: str, quantity: str, scenario: str | None = None) -> Summary:
+        """Mean, std and worst (largest) of ``quantity`` over the controller's runs (those that reached it)."""
+        runs = self.runs(controller, scenario)
+        return summarise([r.values for r in runs], lambda values: values[quantity])
+
+    def failure_rate(self, controller: str, scenario: str | None = None) -> float:
+        runs = self.runs(controller, scenario)
+        return sum(r.failed for r in runs) / max(len(runs), 1)
+
+    def as_dict(self) -> dict:
+        """JSON-ready: settings, summaries per controller (and per scenario), and every case."""
+
+        def clean(value: float) -> float | None:
+            return value if math.isfinite(value) else None
+
+        def summaries(controller: str, scenario: str | None) -> dict:
+            out = {}
+            for name in QUANTITIES:
+                s = self.summary(controller, name, scenario)
+                out[name] = {"mean": clean(s.mean), "std": clean(s.std), "worst": clean(s.worst)}
+            return out | {"failure_rate": self.failure_rate(controller, scenario)}
+
+        return {
+            "controllers": list(self.controllers),
+            "scenarios": {
+                name: {
+                    "loads": [[load.mass_kg, load.height_m] for load in s.loads],
+                    "descent_height_m": s.descent_height_m,
+                    "duration_s": s.duration_s if self.duration_s is None else min(s.duration_s, self.duration_s),
+                }
+                for name, s in self.scenarios.items()
+            },
+            "seeds": list(self.seeds),
+            "randomize": self.randomize,
+            "control_period_s": self.control_period_s,
+            "quantities": {
+                name: {"label": q.label, "si_unit_times": q.scale, "unit": q.unit} for name, q in QUANTITIES.items()
+            },
+            "summary": {c: summaries(c, None) for c in self.controllers},
+            "per_scenario": {c: {s: summaries(c, s) for s in self.scenarios} for c in self.controllers},
+            "cases": [
+                {
+                    "controller": r.case.controller,
+                    "scenario": r.case.scenario,
+                    "seed": r.case.seed,
+                    "termination_reason": r.metrics.termination_reason,
+                    "values": {k: clean(v) for k, v in r.values.items()},
+                }
+                for r in self.results
+            ],
+        }
+
+
+def compare(
+    controllers: Sequence[str],
+    scenarios: Sequence[str] | None = None,
+    seeds: int = 5,
+    first_seed: int = TEST_SEED,
+    randomize: bool = False,
+    control_period_s: float = 1e-3,
+    duration_s: float | None = None,
+    workers: int = 1,
+    progress: Callable[[int], None] | None = None,
+) -> Comparison:
+    """Run every controller on every scenario and seed; ``progress(1)`` after each case."""
+    from microg_env.controllers.registry import check_controller_name
+
+    known = comparison_scenarios()
+    names = tuple(known) if scenarios is None else tuple(scenarios)
+    for name in names:
+        if name not in known:
+            raise ValueError(f"scenario must be one of {', '.join(known)}, got {name!r}")
+    for controller in controllers:
+        check_controller_name(controller)
+    if not controllers or not names:
+        raise ValueError("give at least one controller and one scenario")
+    validate.integer("seeds", seeds, 1, 1000)
+    workers = validate.integer("workers", workers, 1, 256)
+    seed_list = tuple(range(first_seed, first_seed + seeds))
+    jobs = [
+        _Job(Case(c, s, seed), known[s], randomize, control_period_s, duration_s, keep_x=seed == seed_list[0])
+        for s in names
+        for seed in seed_list
+        for c in dict.fromkeys(controllers)
+    ]
+    comparison = Comparison(
+        tuple(dict.fromkeys(controllers)),
+        {s: known[s] for s in names},
+        seed_list,
+        randomize,
+        control_period_s,
+        duration_s,
+    )
+    with contextlib.ExitStack() as stack:
+        if workers == 1:
+            results = map(run_case, jobs)
+        else:
+            pool = stack.enter_context(ProcessPoolExecutor(max_workers=min(workers, len(jobs))))
+            results = pool.map(run_case, jobs)
+        for result in results:
+            comparison.results.append(result)
+            if progress is not None:
+                progress(1)
+    return comparison

@@ -1,0 +1,170 @@
+"""The comparison as Markdown, JSON and figures (``microg compare --out``); it computes nothing that
+:mod:`microg_env.analysis.comparison` does not."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from microg_env.analysis.comparison import QUANTITIES, X_WINDOW_S, Comparison
+from microg_env.analysis.plots import figure_class, save_figure
+from microg_env.files import check_output_folder, replace_folder
+
+#: What a comparison folder holds.
+COMPARISON_FILES = ("comparison.md", "comparison.json", "x_landing.png", "metrics.png")
+#: The controller the others are measured against, where it is compared.
+BASELINE = "pid"
+
+
+def _cell(value: float, scale: float, spec: str) -> str:
+    return "-" if not math.isfinite(value) else format(value * scale, spec)
+
+
+def _spec(value: float) -> str:
+    """Three significant figures, fixed-point where it reads well."""
+    magnitude = abs(value)
+    if magnitude == 0 or not math.isfinite(magnitude):
+        return ".3g"
+    return ".2e" if magnitude < 1e-3 or magnitude >= 1e4 else ".3g"
+
+
+def _summary_cell(c: Comparison, controller: str, name: str, scenario: str | None = None) -> str:
+    quantity, s = QUANTITIES[name], c.summary(controller, name, scenario)
+    if not math.isfinite(s.mean):
+        return "-"
+    spec = _spec(s.mean * quantity.scale)
+    return (
+        f"{_cell(s.mean, quantity.scale, spec)} ± {_cell(s.std, quantity.scale, spec)} "
+        f"({_cell(s.worst, quantity.scale, spec)})"
+    )
+
+
+def render_markdown(c: Comparison) -> str:
+    """The headline table (mean ± std (worst) over scenarios and seeds), ratios to the PID, and the
+    per-scenario means."""
+    plant = "randomised plants (domain randomisation drawn from each seed)" if c.randomize else "the nominal plant"
+    lines = [
+        "# Controller comparison",
+        "",
+        f"Controllers {', '.join(c.controllers)} on the same scenarios and seeds ({c.seeds[0]}-{c.seeds[-1]}, "
+        f"{len(c.seeds)} per scenario), {plant}, every imperfection on, control period "
+        f"{c.control_period_s * 1e6:g} us. Every scenario is held out of training:",
+        "",
+    ]
+    for name, scenario in c.scenarios.items():
+        loads = ", ".join(
+            f"{load.mass_kg:g} kg" + ("" if load.height_m is None else f" at {load.height_m * 1e3:g} mm")
+            for load in scenario.loads
+        )
+        duration = scenario.duration_s if c.duration_s is None else min(scenario.duration_s, c.duration_s)
+        lines.append(f"- `{name}`: {loads}; from {scenario.descent_height_m * 1e3:g} mm; {duration:g} s")
+    lines += [
+        "",
+        "Mean ± std (worst) over every scenario and seed; failures are episodes ended at a stroke limit.",
+        "",
+        "| controller | " + " | ".join(f"{q.label} [{q.unit}]" for q in QUANTITIES.values()) + " | failures |",
+        "|---|" + "---|" * (len(QUANTITIES) + 1),
+    ]
+    for controller in c.controllers:
+        cells = [_summary_cell(c, controller, name) for name in QUANTITIES]
+        lines.append(f"| {controller} | " + " | ".join(cells) + f" | {c.failure_rate(controller):.0%} |")
+    if BASELINE in c.controllers and len(c.controllers) > 1:
+        lines += [
+            "",
+            f"Mean of each metric relative to `{BASELINE}`'s (below 1 is better):",
+            "",
+            "| controller | " + " | ".join(q.label for q in QUANTITIES.values()) + " |",
+            "|---|" + "---|" * len(QUANTITIES),
+        ]
+        for controller in c.controllers:
+            if controller == BASELINE:
+                continue
+            ratios = []
+            for name in QUANTITIES:
+                mine, theirs = c.summary(controller, name).mean, c.summary(BASELINE, name).mean
+                ratio = mine / theirs if theirs else math.nan
+                ratios.append("-" if not math.isfinite(ratio) else f"{ratio:.3g}")
+            lines.append(f"| {controller} | " + " | ".join(ratios) + " |")
+    for name in ("collision_excursion_m", "compensation_error"):
+        quantity = QUANTITIES[name]
+        lines += [
+            "",
+            f"{quantity.label} [{quantity.unit}] per scenario, mean ± std (worst):",
+            "",
+            "| controller | " + " | ".join(f"`{s}`" for s in c.scenarios) + " |",
+            "|---|" + "---|" * len(c.scenarios),
+        ]
+        for controller in c.controllers:
+            cells = [_summary_cell(c, controller, name, s) for s in c.scenarios]
+            lines.append(f"| {controller} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "Figures: `x_landing.png` (x around the first touchdown, first seed), `metrics.png` (means with std "
+        "and worst case). Every case's values: `comparison.json`.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def render_figures(c: Comparison) -> dict[str, object]:
+    """``x_landing.png``: x from 1 s before to 3 s after the touchdown, one panel per scenario;
+    ``metrics.png``: each metric's mean per controller (log scale), std as error bar, worst as a dot."""
+    figure_type = figure_class()
+    n = len(c.scenarios)
+    landing = figure_type(figsize=(9, 2.4 * n), layout="constrained")
+    axes = np.atleast_1d(landing.subplots(n, 1, sharex=True))
+    for ax, scenario in zip(axes, c.scenarios, strict=True):
+        for i, controller in enumerate(c.controllers):
+            for result in c.runs(controller, scenario):
+                if result.x_window is not None:
+                    t, x = result.x_window
+                    ax.plot(t, x * 1e6, lw=0.8, color=f"C{i}", label=controller)
+        ax.axvline(0.0, color="k", lw=0.5)
+        ax.set_ylabel("x [um]")
+        ax.set_title(scenario, fontsize=9)
+        ax.grid(alpha=0.3)
+    if axes[0].get_legend_handles_labels()[0]:  # no touchdown, no line
+        axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time from the first touchdown [s]")
+    axes[-1].set_xlim(*X_WINDOW_S)
+    landing.suptitle(f"x during the landing, seed {c.seeds[0]}" + (", randomised plant" if c.randomize else ""))
+
+    metrics = figure_type(figsize=(3.2 * len(QUANTITIES), 3.6), layout="constrained")
+    panels = np.atleast_1d(metrics.subplots(1, len(QUANTITIES)))
+    positions = np.arange(len(c.controllers))
+    for ax, (name, quantity) in zip(panels, QUANTITIES.items(), strict=True):
+        summaries = [c.summary(controller, name) for controller in c.controllers]
+        means = np.array([s.mean for s in summaries]) * quantity.scale
+        stds = np.array([s.std for s in summaries]) * quantity.scale
+        worst = np.array([s.worst for s in summaries]) * quantity.scale
+        colors = [f"C{i}" for i in range(len(c.controllers))]
+        ax.bar(positions, means, yerr=stds, color=colors, capsize=3)
+        ax.plot(positions, worst, "k.", label="worst")
+        ax.set_yscale("log")
+        ax.set_xticks(positions, c.controllers, rotation=30, ha="right", fontsize=8)
+        ax.set_title(f"{quantity.label} [{quantity.unit}]", fontsize=9)
+        ax.grid(alpha=0.3, axis="y")
+    panels[0].legend(fontsize=8)
+    return {"x_landing.png": landing, "metrics.png": metrics}
+
+
+def check_output(out: str | Path) -> None:
+    """Raise ValueError if ``out`` cannot take a comparison (before any run)."""
+    check_output_folder(out, "--out", COMPARISON_FILES, "a comparison")
+
+
+def write(c: Comparison, out: str | Path) -> Path:
+    """Write the Markdown, the JSON and the figures into ``out``, replacing it only when complete."""
+    check_output(out)
+
+    def fill(staging: Path) -> None:
+        (staging / "comparison.md").write_text(render_markdown(c), encoding="utf-8")
+        (staging / "comparison.json").write_text(json.dumps(c.as_dict(), indent=2) + "\n", encoding="utf-8")
+        for name, figure in render_figures(c).items():
+            save_figure(figure, staging / name)
+
+    return replace_folder(Path(os.path.abspath(out)), fill)

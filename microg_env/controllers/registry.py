@@ -1,0 +1,48 @@
+"""Controllers by name: the ones the CLI, the comparison and the evaluation harness select.
+
+A name is a classical baseline, a policy shipped with the package (``microg_env/policies/``), or
+the path of an exported policy folder (a run's ``policy/``, written by ``microg train``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from microg_env.controllers.base import Controller
+from microg_env.controllers.feedforward import Feedforward
+from microg_env.controllers.pid import PID, load_gains
+from microg_env.controllers.policy import CARD_FILE, load_policy, shipped_policies, shipped_policy_folder
+from microg_env.params import RigParams
+
+#: The classical baselines: the paper's PID, its derivative-on-measurement variant, and the PID
+#: with the nominal model's feed-forward.
+BASELINES = ("pid", "pid-dom", "feedforward")
+#: Every controller selectable by name: the baselines and the shipped policies.
+CONTROLLER_NAMES = BASELINES + shipped_policies()
+
+
+def is_policy_folder(name: str) -> bool:
+    """Whether ``name`` is the path of an exported policy folder (rather than a controller's name)."""
+    return name not in CONTROLLER_NAMES and (Path(name) / CARD_FILE).is_file()
+
+
+def check_controller_name(name: str) -> str:
+    """``name`` if it selects a controller, else a ValueError listing what does."""
+    if name in CONTROLLER_NAMES or is_policy_folder(name):
+        return name
+    raise ValueError(
+        f"controller must be one of {', '.join(CONTROLLER_NAMES)} or a policy folder (holding {CARD_FILE}), "
+        f"got {name!r}"
+    )
+
+
+def make_controller(name: str, control_period_s: float, params: RigParams | None = None) -> Controller:
+    """The named controller with its tuned settings; ``params`` is the nominal rig a model-based
+    controller assumes (default: the paper's rig, whatever the plant it drives)."""
+    check_controller_name(name)
+    if name == "feedforward":
+        return Feedforward(control_period_s, params)
+    if name in BASELINES:
+        return PID(load_gains(name), control_period_s, derivative_on_measurement=name == "pid-dom")
+    folder = Path(name) if is_policy_folder(name) else shipped_policy_folder(name)
+    return load_policy(folder, control_period_s)

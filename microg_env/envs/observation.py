@@ -1,0 +1,25 @@
+"""The environment's observation: what the rig's sensors give, each divided by a scale.
+
+One owner for the layout, read by the environment (which writes it) and the controllers (which
+decode it, :class:`microg_env.controllers.base.Readings`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Observation entries and the scale each is divided by (SI units / scale = order one).
+OBSERVATION_SCALES: dict[str, float] = {
+    "x": 1e-4,  # grating ruler, m (100 um)
+    "x_rate": 1e-3,  # its backward difference, m/s
+    "support_position": 0.1,  # servo encoder, m above touchdown
+    "support_velocity": 0.1,  # encoder backward difference, m/s
+    "lander_accel": 0.1,  # accelerometer with g removed, m/s^2 (up positive)
+    "pad_force": 100.0,  # pad force sensor, N
+    "height": 0.1,  # foot height from encoder + ruler, m
+    "placed_load": 1.0,  # test weights placed so far, kg
+    "previous_action": 1.0,  # the agent's previous action
+    "base_command": 1.25,  # the base controller's speed command (residual mode; else 0), m/s
+}
+OBSERVATION_INDEX = {name: i for i, name in enumerate(OBSERVATION_SCALES)}
+SCALES = np.array(list(OBSERVATION_SCALES.values()))

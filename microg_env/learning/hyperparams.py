@@ -1,0 +1,206 @@
+"""Hyperparameter files in rl-baselines3-zoo's format: ``<algo>.yml``, one entry per env id.
+
+An entry holds the algorithm's keyword arguments plus the zoo's own keys: ``n_envs``,
+``n_timesteps``, ``policy``, ``normalize`` (``true``, or VecNormalize's keyword arguments as a
+mapping or its string), ``env_kwargs``, schedules written ``lin_<initial value>``, and
+``policy_kwargs`` as a mapping or the zoo's ``"dict(...)"`` string. Strings are parsed, never
+evaluated: ``dict(...)`` with literal values and ``nn.<Activation>`` are all they may hold. The
+packaged files are ``training/hyperparams/`` of the source tree, the same files
+``python -m rl_zoo3.train -conf`` reads.
+"""
+
+from __future__ import annotations
+
+import ast
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from microg_env.files import data_folder
+
+#: Algorithms ``microg train`` runs (stable-baselines3's).
+ALGORITHMS = ("ppo", "sac")
+#: The zoo's keys that are not the algorithm's keyword arguments.
+ZOO_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "env_kwargs")
+#: Keys rl-baselines3-zoo reads that ``microg train`` does not (use ``python -m rl_zoo3.train``).
+UNSUPPORTED_KEYS = (
+    "env_wrapper",
+    "vec_env_wrapper",
+    "callback",
+    "frame_stack",
+    "monitor_kwargs",
+    "replay_buffer_class",
+)
+#: Schedules the zoo writes as ``lin_<value>``.
+SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
+#: ``nn.<name>`` in a policy_kwargs string.
+ACTIVATION_NAMES = ("Tanh", "ReLU", "ELU", "LeakyReLU", "GELU", "SiLU")
+
+
+@dataclass(frozen=True)
+class Hyperparams:
+    """One resolved entry: what the run needs beyond the algorithm's keyword arguments."""
+
+    algo: str
+    env_id: str
+    n_envs: int
+    n_timesteps: int
+    policy: str
+    normalize: dict[str, Any] | None  # VecNormalize's keyword arguments, or None for no normalisation
+    env_kwargs: dict[str, Any]
+    algo_kwargs: dict[str, Any] = field(default_factory=dict)  # as written (schedules still strings)
+    source: str = ""
+
+    def as_config(self) -> dict[str, Any]:
+        """The resolved entry as written to the run's ``config.yml`` (the zoo's keys and the algorithm's)."""
+        config = {"n_envs": self.n_envs, "n_timesteps": self.n_timesteps, "policy": self.policy}
+        config["normalize"] = self.normalize if self.normalize is not None else False
+        config["env_kwargs"] = self.env_kwargs
+        return config | self.algo_kwargs
+
+
+def packaged_file(algo: str) -> Path:
+    """The hyperparameter file shipped for ``algo``."""
+    if algo not in ALGORITHMS:
+        raise ValueError(f"--algo must be one of {', '.join(ALGORITHMS)}, got {algo!r}")
+    return data_folder("hyperparams", "training/hyperparams", "ppo.yml") / f"{algo}.yml"
+
+
+def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
+    """The entry for ``env_id`` in ``path`` (default: the packaged ``<algo>.yml``)."""
+    import yaml
+
+    path = packaged_file(algo) if path is None else Path(path)
+    try:
+        table = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise ValueError(f"cannot read hyperparameter file {str(path)!r}: {error.strerror}") from None
+    except yaml.YAMLError as error:
+        raise ValueError(f"hyperparameter file {str(path)!r} is not valid YAML: {_first_line(error)}") from None
+    if not isinstance(table, dict) or env_id not in table:
+        known = ", ".join(map(str, table)) if isinstance(table, dict) else "none"
+        raise ValueError(f"hyperparameter file {str(path)!r} has no entry {env_id!r} (entries: {known})")
+    entry = dict(table[env_id])
+    where = f"{path.name}[{env_id}]"
+    for key in UNSUPPORTED_KEYS:
+        if key in entry:
+            raise ValueError(f"{where}: {key!r} is not supported by microg train (run python -m rl_zoo3.train)")
+    algo_kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS}
+    if "policy_kwargs" in algo_kwargs:
+        algo_kwargs["policy_kwargs"] = _policy_kwargs(algo_kwargs["policy_kwargs"], where)
+    if "train_freq" in algo_kwargs and isinstance(algo_kwargs["train_freq"], list):
+        algo_kwargs["train_freq"] = tuple(algo_kwargs["train_freq"])
+    for key in SCHEDULE_KEYS:
+        if isinstance(algo_kwargs.get(key), str):
+            schedule(algo_kwargs[key], f"{where}.{key}")  # check it now
+    return Hyperparams(
+        algo=algo,
+        env_id=env_id,
+        n_envs=_positive_int(entry.get("n_envs", 1), f"{where}.n_envs"),
+        n_timesteps=_positive_int(entry.get("n_timesteps", 0), f"{where}.n_timesteps"),
+        policy=str(entry.get("policy", "MlpPolicy")),
+        normalize=_normalize(entry.get("normalize", False), algo_kwargs.get("gamma"), where),
+        env_kwargs=dict(entry.get("env_kwargs") or {}),
+        algo_kwargs=algo_kwargs,
+        source=str(path),
+    )
+
+
+def schedule(text: str, where: str):
+    """``lin_<value>``: the zoo's linear schedule from ``value`` at the start to 0 at the end."""
+    kind, _, value = text.partition("_")
+    try:
+        initial = float(value)
+    except ValueError:
+        initial = None
+    if kind != "lin" or initial is None:
+        raise ValueError(f"{where}: schedule must be written lin_<value>, got {text!r}")
+    return lambda progress_remaining: progress_remaining * initial
+
+
+def algo_arguments(params: Hyperparams) -> dict[str, Any]:
+    """The algorithm's keyword arguments, schedules and activations made objects."""
+    import torch.nn as nn
+
+    kwargs = dict(params.algo_kwargs)
+    for key in SCHEDULE_KEYS:
+        if isinstance(kwargs.get(key), str):
+            kwargs[key] = schedule(kwargs[key], key)
+    policy_kwargs = dict(kwargs.get("policy_kwargs") or {})
+    if isinstance(policy_kwargs.get("activation_fn"), str):
+        policy_kwargs["activation_fn"] = getattr(nn, policy_kwargs["activation_fn"].removeprefix("nn."))
+    if policy_kwargs:
+        kwargs["policy_kwargs"] = policy_kwargs
+    return kwargs
+
+
+def _first_line(error: Exception) -> str:
+    return str(error).strip().splitlines()[0]
+
+
+def _positive_int(value: Any, where: str) -> int:
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise ValueError(f"{where} must be a positive integer, got {value!r}")
+    return value
+
+
+def _normalize(value: Any, gamma: Any, where: str) -> dict[str, Any] | None:
+    """VecNormalize's keyword arguments (the zoo passes the algorithm's gamma on), or None."""
+    if value is False or value is None:
+        return None
+    if value is True:
+        kwargs: dict[str, Any] = {}
+    elif isinstance(value, str):
+        kwargs = _literal_call(value, f"{where}.normalize")
+    elif isinstance(value, dict):
+        kwargs = dict(value)
+    else:
+        raise ValueError(f"{where}.normalize must be true, false or VecNormalize's arguments, got {value!r}")
+    if gamma is not None:
+        kwargs["gamma"] = gamma
+    return kwargs
+
+
+def _policy_kwargs(value: Any, where: str) -> dict[str, Any]:
+    if isinstance(value, dict):
+        return dict(value)
+    if isinstance(value, str):
+        return _literal_call(value, f"{where}.policy_kwargs")
+    raise ValueError(f"{where}.policy_kwargs must be a mapping or a dict(...) string, got {value!r}")
+
+
+def _literal_call(text: str, where: str) -> dict[str, Any]:
+    """``dict(a=1, ...)`` or ``{'a': 1, ...}`` with literal values and ``nn.<Activation>`` names,
+    parsed without evaluating anything; activations come back as the string ``nn.<name>``."""
+    try:
+        tree = ast.parse(text.strip(), mode="eval").body
+    except SyntaxError:
+        raise ValueError(f"{where}: cannot parse {text!r}") from None
+
+    def value(node: ast.AST) -> Any:
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn":
+            if node.attr not in ACTIVATION_NAMES:
+                raise ValueError(f"{where}: unknown activation nn.{node.attr} (known: {', '.join(ACTIVATION_NAMES)})")
+            return f"nn.{node.attr}"
+        if isinstance(node, ast.Call):
+            return call(node)
+        if isinstance(node, ast.List):
+            return [value(item) for item in node.elts]
+        if isinstance(node, ast.Dict):
+            return {ast.literal_eval(k): value(v) for k, v in zip(node.keys, node.values, strict=True)}
+        try:
+            return ast.literal_eval(node)
+        except ValueError:
+            raise ValueError(f"{where}: only literal values may appear in {text!r}") from None
+
+    def call(node: ast.Call) -> dict[str, Any]:
+        if not (isinstance(node.func, ast.Name) and node.func.id == "dict") or node.args:
+            raise ValueError(f"{where}: only dict(key=value, ...) may appear in {text!r}")
+        return {keyword.arg: value(keyword.value) for keyword in node.keywords}
+
+    result = value(tree)
+    if not isinstance(result, dict):
+        raise ValueError(f"{where}: expected a dict, got {text!r}")
+    return result

@@ -1,0 +1,458 @@
+"""``microg train``: stable-baselines3 on ``MicroGravityLanding-v1``, in rl-baselines3-zoo's layout.
+
+A run lives in ``<log folder>/<algo>/<env id>_<n>/``:
+
+| file | what |
+|---|---|
+| ``config.yml`` | the resolved hyperparameters, itself a hyperparameter file (``-conf``) |
+| ``args.yml`` | the command line and settings of the run |
+| ``<env id>.zip``, ``vecnormalize.pkl`` | the final model and normalisation statistics |
+| ``best_model.zip``, ``best_vecnormalize.pkl`` | the model with the lowest evaluation cost so far |
+| ``policy/`` | the best model exported to NumPy with its card (``microg compare --controllers``) |
+| ``checkpoints/`` | ``rl_model_<steps>_steps.zip`` with its normalisation (and replay buffer), ``latest.json`` |
+| ``evaluations.json`` | every evaluation: steps, wall time, cost, the project's metrics |
+| ``train.log`` | progress and evaluations with wall-clock time; the total at the end |
+| ``tb/`` | TensorBoard events (the algorithm's and ``eval/``) |
+| ``monitor/`` | stable-baselines3's monitor files (episode return, length, time) |
+
+Evaluation uses the project's metrics, not only the return: every ``eval_freq`` steps the
+deterministic policy runs, as a :class:`~microg_env.controllers.policy.PolicyController` in the
+speed-action environment (exactly as it will be deployed), on ``eval_episodes`` validation
+schedules (:data:`~microg_env.scenarios.VALIDATION_SAMPLER`, longer than the training draws) with
+the training run's imperfections and randomisation, seeds from :data:`VALIDATION_SEED` (never a
+training or test seed); the cost is :func:`~microg_env.analysis.evaluate.control_cost`, the PID
+tuner's. Every file is written atomically; ``latest.json`` is written after its checkpoint's files,
+so ``--resume`` always finds a complete one, and continues the step count, the normalisation
+statistics, the replay buffer, the best cost, the evaluation history and the wall-clock total.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from microg_env.controllers.policy import deployed_controller
+from microg_env.files import atomic_path, write_text
+from microg_env.learning import hyperparams as hp
+from microg_env.learning.export import write_policy_folder
+
+#: First seed of the validation episodes that choose the best model (training envs are seeded
+#: ``seed`` to ``seed + n_envs - 1``; ``microg compare`` tests on seeds from 1000).
+VALIDATION_SEED = 500
+#: The environments ``microg train`` trains on.
+ENV_IDS = ("MicroGravityLanding-v1",)
+#: Folders and files of a run.
+CHECKPOINTS, LATEST, POLICY, EVALUATIONS, LOG = "checkpoints", "latest.json", "policy", "evaluations.json", "train.log"
+
+
+class TrainingInterrupted(Exception):
+    """Training stopped by the user after saving a checkpoint."""
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """What a run is asked to do (``args.yml``)."""
+
+    algo: str
+    env_id: str = ENV_IDS[0]
+    seed: int = 0
+    timesteps: int | None = None  # None: the hyperparameter file's n_timesteps
+    n_envs: int | None = None  # None: the hyperparameter file's n_envs
+    hyperparams: str | None = None  # None: the packaged training/hyperparams/<algo>.yml
+    log_folder: str = "logs"
+    eval_freq: int = 100_000  # environment steps (all environments together) between evaluations
+    eval_episodes: int = 5
+    checkpoint_freq: int = 100_000  # environment steps between checkpoints
+    command: str = ""
+
+
+def algorithm(name: str):
+    from stable_baselines3 import PPO, SAC
+
+    return {"ppo": PPO, "sac": SAC}[name]
+
+
+def new_run_folder(log_folder: str | Path, algo: str, env_id: str) -> Path:
+    """``<log folder>/<algo>/<env id>_<n>`` with n one more than the highest there (the zoo's rule)."""
+    parent = Path(log_folder) / algo
+    parent.mkdir(parents=True, exist_ok=True)
+    taken = [p.name.removeprefix(f"{env_id}_") for p in parent.glob(f"{env_id}_*")]
+    number = max((int(n) for n in taken if n.isdigit()), default=0) + 1
+    while True:
+        folder = parent / f"{env_id}_{number}"
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:  # another run took it
+            number += 1
+
+
+def train(
+    settings: TrainSettings,
+    resume_folder: str | Path | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> Path:
+    """Train (or continue the run in ``resume_folder``); returns the run folder.
+
+    ``progress(steps_done, steps_total)`` follows the steps; ``log(line)`` gets every line of
+    ``train.log`` as it is written. Ctrl-C saves a checkpoint and raises :class:`TrainingInterrupted`.
+    """
+    import torch
+    import yaml
+
+    torch.set_num_threads(1)  # small networks: one thread is fastest on a shared machine
+    if resume_folder is None:
+        params = resolve(settings)
+        folder = new_run_folder(settings.log_folder, settings.algo, settings.env_id)
+        write_text(folder / "config.yml", yaml.safe_dump({settings.env_id: params.as_config()}, sort_keys=False))
+        write_text(folder / "args.yml", yaml.safe_dump(asdict(settings), sort_keys=False))
+        state = {"timesteps": 0, "wall_s": 0.0, "best_cost": None, "sessions": 0, "resume_commands": []}
+    else:
+        folder, settings, params, state = resumed_run(Path(resume_folder), settings)
+    run = _Run(folder, settings, params, state, progress, log)
+    return run.learn()
+
+
+def resolve(settings: TrainSettings) -> hp.Hyperparams:
+    """The run's hyperparameters: the file's entry for the env with the settings' overrides."""
+    if settings.env_id not in ENV_IDS:
+        raise ValueError(f"--env must be one of {', '.join(ENV_IDS)}, got {settings.env_id!r}")
+    params = hp.load(settings.algo, settings.env_id, settings.hyperparams)
+    if settings.timesteps is not None:
+        params = replace(params, n_timesteps=settings.timesteps)
+    if settings.n_envs is not None:
+        params = replace(params, n_envs=settings.n_envs)
+    return params
+
+
+def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings, hp.Hyperparams, dict[str, Any]]:
+    """The run in ``folder`` as it was left, with a new step target if one is asked."""
+    import yaml
+
+    latest = folder / CHECKPOINTS / LATEST
+    if not latest.is_file():
+        raise ValueError(f"--resume {str(folder)!r}: no checkpoint to resume from ({latest} is missing)")
+    try:
+        args = yaml.safe_load((folder / "args.yml").read_text(encoding="utf-8"))
+        state = json.loads(latest.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError, json.JSONDecodeError) as error:
+        raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({error})") from None
+    settings = TrainSettings(**args)
+    if asked.algo != settings.algo:
+        raise ValueError(f"--algo {asked.algo!r}: the run in {str(folder)!r} trains {settings.algo!r}")
+    params = hp.load(settings.algo, settings.env_id, folder / "config.yml")
+    if asked.timesteps is not None:
+        params = replace(params, n_timesteps=asked.timesteps)
+        settings = replace(settings, timesteps=asked.timesteps)
+    if params.n_timesteps <= state["timesteps"]:
+        raise ValueError(
+            f"--timesteps {params.n_timesteps}: the run in {str(folder)!r} already has {state['timesteps']} steps; "
+            "ask for more"
+        )
+    if asked.command:
+        state["resume_commands"] = [*state.get("resume_commands", []), asked.command]
+    return folder, settings, params, state
+
+
+class _Run:
+    """One training session of a run folder: environments, model, callbacks."""
+
+    def __init__(self, folder, settings, params, state, progress, log) -> None:
+        self.folder, self.settings, self.params, self.state = folder, settings, params, state
+        self.progress, self.echo = progress, log
+        self.session_start, self.earlier_wall_s = time.monotonic(), state["wall_s"]
+        self.evaluations = _read_json(folder / EVALUATIONS, [])
+        # The best model on disk is the best ever evaluated, even after the last checkpoint.
+        costs = [row["cost"] for row in self.evaluations if row.get("best") and row["cost"] is not None]
+        self.state["best_cost"] = min(costs, default=None)
+
+    # -- the log ---------------------------------------------------------------------------
+
+    def log(self, text: str) -> None:
+        line = f"[{self.wall_s():8.1f} s] {text}"
+        with open(self.folder / LOG, "a", encoding="utf-8") as stream:
+            stream.write(line + "\n")
+        if self.echo is not None:
+            self.echo(line)
+
+    def wall_s(self) -> float:
+        """Wall-clock time of the whole run, every session."""
+        return self.earlier_wall_s + time.monotonic() - self.session_start
+
+    # -- building --------------------------------------------------------------------------
+
+    def _environments(self, seed: int, resuming: bool):
+        from stable_baselines3.common.env_util import make_vec_env
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        venv = make_vec_env(
+            self.params.env_id,
+            n_envs=self.params.n_envs,
+            seed=seed,
+            env_kwargs=self.params.env_kwargs,
+            monitor_dir=str(self.folder / "monitor"),
+            monitor_kwargs={"override_existing": not resuming, "info_keywords": ("termination_reason",)},
+        )
+        if self.params.normalize is None:
+            return venv
+        if resuming:
+            statistics = VecNormalize.load(str(self.folder / CHECKPOINTS / self.state["vecnormalize"]), venv)
+            statistics.training = True
+            return statistics
+        return VecNormalize(venv, **self.params.normalize)
+
+    def _model(self, venv, resuming: bool):
+        cls = algorithm(self.params.algo)
+        seed = self.settings.seed + self.state["timesteps"]
+        if not resuming:
+            return cls(
+                self.params.policy,
+                venv,
+                seed=seed,
+                device="cpu",
+                tensorboard_log=str(self.folder / "tb"),
+                verbose=0,
+                **hp.algo_arguments(self.params),
+            )
+        checkpoints = self.folder / CHECKPOINTS
+        model = cls.load(
+            checkpoints / self.state["model"], env=venv, device="cpu", tensorboard_log=str(self.folder / "tb")
+        )
+        model.set_random_seed(seed)
+        if self.state.get("replay_buffer"):
+            model.load_replay_buffer(checkpoints / self.state["replay_buffer"])
+        return model
+
+    # -- training --------------------------------------------------------------------------
+
+    def learn(self) -> Path:
+        from stable_baselines3.common.callbacks import CallbackList
+
+        resuming = self.state["timesteps"] > 0
+        self.state["sessions"] += 1
+        # Envs are seeded seed..seed+n-1; a resumed session moves on by the steps already run.
+        venv = self._environments(self.settings.seed + self.state["timesteps"], resuming)
+        model = self._model(venv, resuming)
+        target = self.params.n_timesteps
+        command = (self.state.get("resume_commands") or [""])[-1] if resuming else self.settings.command
+        self.log(
+            f"{'resumed at' if resuming else 'started'} {model.num_timesteps} steps: {self.params.algo} on "
+            f"{self.params.env_id}, {self.params.n_envs} envs, target {target} steps, seed {self.settings.seed}; "
+            f"{command}"
+        )
+        callbacks = CallbackList([_callback(self)])
+        interrupted = False
+        try:
+            model.learn(
+                target - model.num_timesteps,
+                callback=callbacks,
+                reset_num_timesteps=False,
+                tb_log_name=self.params.algo,
+                log_interval=1 if self.params.algo == "ppo" else 10,
+            )
+        except KeyboardInterrupt:
+            interrupted = True
+        self.checkpoint(model)
+        venv.close()
+        if interrupted:
+            self.log(f"interrupted at {model.num_timesteps} steps; continue with: microg train --resume {self.folder}")
+            raise TrainingInterrupted(f"interrupted; continue with: microg train --resume {self.folder}")
+        with atomic_path(self.folder / f"{self.params.env_id}.zip") as temporary:
+            model.save(temporary)
+        normalization = model.get_vec_normalize_env()
+        if normalization is not None:
+            with atomic_path(self.folder / "vecnormalize.pkl") as temporary:
+                normalization.save(str(temporary))
+        best = self.state["best_cost"]
+        best = "none (every evaluation failed)" if best is None else f"{best:.4g}"
+        self.log(
+            f"finished: {model.num_timesteps} steps in {self.wall_s():.1f} s wall over "
+            f"{self.state['sessions']} session(s); best evaluation cost {best}"
+        )
+        return self.folder
+
+    def checkpoint(self, model) -> None:
+        """Save model, normalisation and replay buffer, then point ``latest.json`` at them."""
+        folder = self.folder / CHECKPOINTS
+        folder.mkdir(exist_ok=True)
+        steps = model.num_timesteps
+        files = {"model": f"rl_model_{steps}_steps.zip"}
+        with atomic_path(folder / files["model"]) as temporary:
+            model.save(temporary)
+        normalization = model.get_vec_normalize_env()
+        if normalization is not None:
+            files["vecnormalize"] = f"rl_model_vecnormalize_{steps}_steps.pkl"
+            with atomic_path(folder / files["vecnormalize"]) as temporary:
+                normalization.save(str(temporary))
+        if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
+            files["replay_buffer"] = f"rl_model_replay_buffer_{steps}_steps.pkl"
+            with atomic_path(folder / files["replay_buffer"]) as temporary:
+                model.save_replay_buffer(temporary)
+        previous_buffer = self.state.get("replay_buffer")
+        self.state = self.state | files | {"timesteps": steps, "wall_s": round(self.wall_s(), 1)}
+        write_text(folder / LATEST, json.dumps(self.state, indent=2) + "\n")
+        if previous_buffer and previous_buffer != files.get("replay_buffer"):
+            (folder / previous_buffer).unlink(missing_ok=True)  # one replay buffer is enough (and large)
+
+    def evaluate(self, model) -> None:
+        """The deterministic policy on the validation schedules, by the project's metrics."""
+        from microg_env.analysis.evaluate import control_cost, evaluate
+
+        env_kwargs = self.params.env_kwargs
+        normalization = model.get_vec_normalize_env()
+        policy = _NormalizedPolicy(model, normalization)
+        controller = deployed_controller(policy, env_kwargs)
+        seeds = range(VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes)
+        runs, failure_rate = evaluate(lambda: _speed_env(self.params.env_id, env_kwargs), controller, seeds)
+        cost = control_cost(runs)
+        row = {
+            "timesteps": model.num_timesteps,
+            "wall_s": round(self.wall_s(), 1),
+            "cost": cost,
+            "compensation_error_pct": _mean_abs([e for run in runs for e in run.compensation_error_pct]),
+            "free_fall_excursion_um": _mean([run.flexible_unit_excursion_free_fall_m * 1e6 for run in runs]),
+            "collision_excursion_um": _mean([run.flexible_unit_excursion_collision_m * 1e6 for run in runs]),
+            "failure_rate": failure_rate,
+        }
+        for key, value in row.items():
+            if key not in ("timesteps", "wall_s"):
+                model.logger.record(f"eval/{key}", value)
+        model.logger.dump(model.num_timesteps)
+        best = self.state["best_cost"]
+        new_best = math.isfinite(cost) and (best is None or cost < best)
+        row = {key: _json_number(value) for key, value in row.items()} | {"best": new_best}
+        self.evaluations.append(row)
+        write_text(self.folder / EVALUATIONS, json.dumps(self.evaluations, indent=1) + "\n")
+        self.log(
+            f"eval at {row['timesteps']} steps: cost {_show(cost, '.4g')}, "
+            f"|compensation error| {_show(row['compensation_error_pct'], '.4f')} %, "
+            f"x free fall {_show(row['free_fall_excursion_um'], '.3f')} um, "
+            f"collision {_show(row['collision_excursion_um'], '.3f')} um, failures {failure_rate:.0%}"
+            + (" (new best)" if new_best else "")
+        )
+        if new_best:
+            self.state["best_cost"] = cost
+            self.save_best(model, row)
+
+    def save_best(self, model, row: dict[str, Any]) -> None:
+        with atomic_path(self.folder / "best_model.zip") as temporary:
+            model.save(temporary)
+        normalization = model.get_vec_normalize_env()
+        if normalization is not None:
+            with atomic_path(self.folder / "best_vecnormalize.pkl") as temporary:
+                normalization.save(str(temporary))
+        write_policy_folder(self.folder / POLICY, model, normalization, self.card(model, row))
+
+    def card(self, model, row: dict[str, Any]) -> dict[str, Any]:
+        """The policy's provenance: how it acts, the exact command and seed that trained it, its budget."""
+        import stable_baselines3
+        import torch
+
+        from microg_env import __version__
+
+        return {
+            "env_id": self.params.env_id,
+            "env_kwargs": self.params.env_kwargs,
+            "algo": self.params.algo,
+            "command": self.settings.command,
+            "resume_commands": self.state.get("resume_commands", []),
+            "seed": self.settings.seed,
+            "timesteps": model.num_timesteps,
+            "target_timesteps": self.params.n_timesteps,
+            "wall_s": round(self.wall_s(), 1),
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores, torch {torch.get_num_threads()} thread(s)",
+            "hyperparams": self.params.as_config(),
+            "validation": row | {"seeds": [VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes - 1]},
+            "versions": {
+                "microg_env": __version__,
+                "stable_baselines3": stable_baselines3.__version__,
+                "torch": torch.__version__,
+                "numpy": np.__version__,
+            },
+        }
+
+
+def _callback(run: _Run):
+    """Evaluation, checkpoints and progress, at the frequencies of the settings (in total steps)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Callback(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.next_eval = _next_multiple(self.num_timesteps, run.settings.eval_freq)
+            self.next_checkpoint = _next_multiple(self.num_timesteps, run.settings.checkpoint_freq)
+
+        def _on_step(self) -> bool:
+            steps = self.num_timesteps
+            if run.progress is not None:
+                run.progress(steps, run.params.n_timesteps)
+            if steps >= self.next_eval:
+                run.evaluate(self.model)
+                self.next_eval = _next_multiple(steps, run.settings.eval_freq)
+            if steps >= self.next_checkpoint:
+                run.checkpoint(self.model)
+                self.next_checkpoint = _next_multiple(steps, run.settings.checkpoint_freq)
+            return True
+
+    return Callback()
+
+
+def _next_multiple(steps: int, every: int) -> int:
+    return (steps // every + 1) * every
+
+
+class _NormalizedPolicy:
+    """A stable-baselines3 model reading raw observations through its VecNormalize statistics."""
+
+    def __init__(self, model, normalization) -> None:
+        self.model, self.normalization = model, normalization
+
+    def predict(self, observation: np.ndarray, deterministic: bool = True):
+        if self.normalization is not None:
+            observation = self.normalization.normalize_obs(observation)
+        return self.model.predict(observation, deterministic=deterministic)
+
+
+def _speed_env(env_id: str, env_kwargs: dict[str, Any]):
+    """The training environment with the speed action (a controller composes the residual itself)
+    and the validation schedules."""
+    import gymnasium as gym
+
+    from microg_env.scenarios import VALIDATION_SAMPLER
+
+    kwargs = {k: v for k, v in env_kwargs.items() if k not in ("action_mode", "base_controller", "decision_period")}
+    return gym.make(env_id, **(kwargs | {"scenario_sampler": VALIDATION_SAMPLER}))
+
+
+def _mean(values: list[float]) -> float:
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
+def _mean_abs(values: list[float]) -> float:
+    return _mean([abs(v) for v in values])
+
+
+def _show(value: float | None, spec: str) -> str:
+    return "n/a" if value is None or not math.isfinite(value) else format(value, spec)
+
+
+def _json_number(value):
+    """JSON has no infinity or NaN: they are written as null."""
+    return value if not isinstance(value, float) or math.isfinite(value) else None
+
+
+def _read_json(path: Path, default):
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return default

@@ -1,0 +1,129 @@
+"""microg compare: every controller on the same scenarios, seeds and plants; summaries, report, CLI."""
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from microg_env.analysis.comparison import QUANTITIES, TEST_SEED, compare
+from microg_env.analysis.comparison_report import COMPARISON_FILES, render_markdown, write
+from microg_env.analysis.evaluate import summarise
+from microg_env.cli import main
+from microg_env.controllers.policy import policy_card, shipped_policy_folder
+from microg_env.learning.hyperparams import load as load_hyperparams
+
+
+@pytest.fixture(scope="module")
+def randomized():
+    """pid and feedforward on condition 2 (6 s: the free fall and the collision), two randomised plants."""
+    return compare(["pid", "feedforward"], ["condition-2"], seeds=2, randomize=True, duration_s=6.0)
+
+
+def test_every_controller_meets_the_same_plants_and_seeds(randomized):
+    assert [(r.case.controller, r.case.seed) for r in randomized.results] == [
+        ("pid", TEST_SEED),
+        ("feedforward", TEST_SEED),
+        ("pid", TEST_SEED + 1),
+        ("feedforward", TEST_SEED + 1),
+    ]
+    by_seed = {}
+    for r in randomized.results:  # the ideal reference depends only on the drawn lander, pad and loads
+        by_seed.setdefault(r.case.seed, set()).add(r.metrics.reference_max_deformation_m)
+    assert all(len(values) == 1 for values in by_seed.values())
+    assert len({next(iter(v)) for v in by_seed.values()}) == 2  # and the two seeds drew different plants
+
+
+def test_summaries_are_mean_std_worst_of_the_cases(randomized):
+    for name in QUANTITIES:
+        values = [r.values[name] for r in randomized.runs("feedforward")]
+        s = randomized.summary("feedforward", name)
+        assert s.mean == pytest.approx(np.mean(values))
+        assert s.std == pytest.approx(np.std(values))
+        assert s.worst == max(values)
+    assert randomized.failure_rate("pid") == 0.0
+
+
+def test_feedforward_beats_the_pid_on_a_short_randomised_run(randomized):
+    """The strong baseline: at least 5x lower collision excursion and compensation error than the
+    PID on average, and its worst case better than the PID's best."""
+    for name in ("collision_excursion_m", "compensation_error"):
+        ours, theirs = randomized.summary("feedforward", name), randomized.summary("pid", name)
+        assert ours.mean * 5 < theirs.mean, name
+        assert ours.worst < min(r.values[name] for r in randomized.runs("pid")), name
+
+
+def test_parallel_workers_give_the_same_results():
+    one = compare(["pid"], ["condition-2"], seeds=2, duration_s=4.5)
+    two = compare(["pid"], ["condition-2"], seeds=2, duration_s=4.5, workers=2)
+    assert all(math.isfinite(r.values["compensation_error"]) for r in one.results)
+    np.testing.assert_equal([r.values for r in one.results], [r.values for r in two.results])
+    assert [r.case for r in one.results] == [r.case for r in two.results]
+
+
+def test_the_report_holds_the_table_ratios_figures_and_json(randomized, tmp_path):
+    text = render_markdown(randomized)
+    assert "| feedforward |" in text
+    assert "relative to `pid`" in text
+    header = next(line for line in text.splitlines() if line.startswith("| controller | compensation"))
+    assert header.count("|") == len(QUANTITIES) + 3  # no stray pipes in the labels
+    out = write(randomized, tmp_path / "comparison")
+    assert sorted(p.name for p in out.iterdir()) == sorted(COMPARISON_FILES)
+    data = json.loads((out / "comparison.json").read_text())
+    assert data["randomize"] is True
+    assert data["seeds"] == [TEST_SEED, TEST_SEED + 1]
+    mean = data["summary"]["pid"]["collision_excursion_m"]["mean"]
+    assert mean == pytest.approx(summarise(randomized.runs("pid"), lambda r: r.values["collision_excursion_m"]).mean)
+    assert len(data["cases"]) == 4
+
+
+def test_a_quantity_a_run_never_reached_is_left_out_and_failures_are_counted(randomized):
+    short = compare(["pid"], ["condition-2"], seeds=1, duration_s=0.2)
+    assert math.isnan(short.summary("pid", "collision_excursion_m").mean)  # no collision in 0.2 s: no number
+    first = randomized.results[0]
+    failed = replace(first, metrics=replace(first.metrics, termination_reason="guide_stroke_limit"))
+    mixed = replace(randomized, results=[failed, *randomized.results[1:]])
+    assert mixed.failure_rate("pid") == 0.5
+    assert mixed.failure_rate("feedforward") == 0.0
+
+
+def test_cli_compare_prints_json(capsys):
+    args = ["compare", "--controllers", "pid", "--scenarios", "condition-3", "--seeds", "1", "--duration", "0.5"]
+    assert main([*args, "--json", "--quiet"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["controllers"] == ["pid"]
+    assert list(data["scenarios"]) == ["condition-3"]
+    assert data["scenarios"]["condition-3"]["duration_s"] == 0.5
+
+
+# The shipped policy: how it was made, and that it does what the README says on held-out cases.
+
+
+def test_the_shipped_policy_records_its_training():
+    folder = shipped_policy_folder("residual-ppo")
+    card = policy_card(folder)
+    assert card["command"].startswith("microg train --algo ppo --seed 0")  # the packaged ppo.yml
+    assert card["seed"] == 0
+    assert card["env_kwargs"]["scenario_sampler"] == "training"  # never the paper's conditions
+    assert card["hyperparams"] == load_hyperparams("ppo", "MicroGravityLanding-v1").as_config()
+    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
+    assert totals["timesteps"] >= card["target_timesteps"] >= card["timesteps"]
+    assert totals["sessions"] == 1
+    assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
+
+
+@pytest.mark.slow
+def test_the_shipped_policy_beats_the_pid_fivefold_on_held_out_cases():
+    """Condition 2 and heavy-second (its 1.4 kg never drawn in training) on two test seeds,
+    randomised plants: |compensation error| and collision excursion at least 5 times the PID's
+    lower, and the collision excursion no worse than the feed-forward's."""
+    result = compare(
+        ["pid", "feedforward", "residual-ppo"], ["condition-2", "heavy-second"], seeds=2, randomize=True, duration_s=9.0
+    )
+    assert result.failure_rate("residual-ppo") == 0.0
+    for quantity in ("compensation_error", "collision_excursion_m"):
+        pid, learned = (result.summary(c, quantity).mean for c in ("pid", "residual-ppo"))
+        assert learned * 5 <= pid, quantity
+    feedforward, learned = (result.summary(c, "collision_excursion_m").mean for c in ("feedforward", "residual-ppo"))
+    assert learned <= feedforward

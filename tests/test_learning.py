@@ -1,0 +1,373 @@
+"""Learned controllers: hyperparameter files, the NumPy export, the policy as a controller, the
+training pipeline end to end (every artifact, resume, interrupt), and rl-baselines3-zoo as a client."""
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+import microg_env  # noqa: F401  (registers the environment)
+from microg_env.analysis.evaluate import control_cost, run_episode
+from microg_env.controllers import MLPPolicy, PolicyController, make_controller
+from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.learning import hyperparams as hp
+from microg_env.learning.export import export_policy, write_policy_folder
+from microg_env.learning.train import TrainingInterrupted, TrainSettings, train
+
+pytest.importorskip("stable_baselines3")
+REPO = Path(__file__).resolve().parents[1]
+ENV_ID = "MicroGravityLanding-v1"
+RESIDUAL = {"action_mode": "residual", "base_controller": "feedforward", "decision_period": 5}
+
+
+# -- hyperparameter files ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_the_packaged_files_are_the_repositorys_and_parse(algo):
+    params = hp.load(algo, ENV_ID)
+    assert Path(params.source).read_bytes() == (REPO / "training" / "hyperparams" / f"{algo}.yml").read_bytes()
+    assert params.env_kwargs["action_mode"] == "residual"
+    assert params.normalize is not None
+    assert params.normalize["gamma"] == params.algo_kwargs["gamma"]
+    assert params.algo_kwargs["policy_kwargs"]["net_arch"] == [64, 64]
+    assert "n_envs" not in params.algo_kwargs
+    assert "env_kwargs" not in params.algo_kwargs
+
+
+def test_the_zoos_string_forms_parse_without_evaluating_anything(tmp_path):
+    path = tmp_path / "ppo.yml"
+    path.write_text(
+        f"{ENV_ID}:\n"
+        "  n_timesteps: !!float 2e4\n"
+        '  normalize: "dict(norm_obs=True, norm_reward=False)"\n'
+        "  learning_rate: lin_3e-4\n"
+        '  policy_kwargs: "dict(activation_fn=nn.ReLU, net_arch=dict(pi=[32], vf=[32]))"\n'
+    )
+    params = hp.load("ppo", ENV_ID, path)
+    assert params.n_timesteps == 20000
+    assert params.normalize == {"norm_obs": True, "norm_reward": False}
+    arguments = hp.algo_arguments(params)
+    assert arguments["learning_rate"](0.5) == pytest.approx(1.5e-4)
+    import torch.nn as nn
+
+    assert arguments["policy_kwargs"]["activation_fn"] is nn.ReLU
+    assert arguments["policy_kwargs"]["net_arch"] == {"pi": [32], "vf": [32]}
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ("policy_kwargs: \"__import__('os').system('true')\"", "only dict"),
+        ('policy_kwargs: "dict(activation_fn=nn.Evil)"', "unknown activation"),
+        ("learning_rate: cos_3e-4", "lin_<value>"),
+        ("n_envs: 0", "n_envs"),
+        ("env_wrapper: gymnasium.wrappers.TimeLimit", "env_wrapper"),
+    ],
+)
+def test_bad_entries_are_named(tmp_path, entry, message):
+    path = tmp_path / "ppo.yml"
+    path.write_text(f"{ENV_ID}:\n  {entry}\n")
+    with pytest.raises(ValueError, match=message):
+        hp.load("ppo", ENV_ID, path)
+
+
+def test_a_missing_entry_lists_the_entries(tmp_path):
+    path = tmp_path / "ppo.yml"
+    path.write_text("Other-v0:\n  n_envs: 1\n")
+    with pytest.raises(ValueError, match=r"no entry 'MicroGravityLanding-v1' .*Other-v0"):
+        hp.load("ppo", ENV_ID, path)
+
+
+# -- the NumPy export and the policy as a controller -------------------------------------------
+
+
+def _vec_env(**kwargs):
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    venv = VecNormalize(make_vec_env(ENV_ID, n_envs=1, seed=0, env_kwargs=RESIDUAL | {"condition": 2}))
+    venv.reset()
+    for _ in range(50):  # statistics other than the identity
+        venv.step(np.random.default_rng(0).uniform(-1, 1, (1, 1)).astype(np.float32))
+    return venv
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_the_numpy_export_acts_as_stable_baselines3_does(algo):
+    from stable_baselines3 import PPO, SAC
+
+    venv = _vec_env()
+    cls = {"ppo": PPO, "sac": SAC}[algo]
+    model = cls("MlpPolicy", venv, seed=1, device="cpu", policy_kwargs={"net_arch": [16, 16]})
+    head = model.policy.action_net if algo == "ppo" else model.actor.mu
+    with __import__("torch").no_grad():  # a head far from zero, so clipping and squashing show
+        head.weight.mul_(300.0 if algo == "ppo" else 10.0)
+    exported = export_policy(model, venv)
+    observations = np.random.default_rng(2).normal(0.0, 3.0, (200, 10)).astype(np.float32)
+    ours = np.array([exported.predict(o)[0] for o in observations])
+    theirs = np.array([model.predict(venv.normalize_obs(o), deterministic=True)[0] for o in observations])
+    np.testing.assert_allclose(ours, theirs, atol=2e-6)
+    assert np.abs(ours).max() > 0.5  # the comparison reaches the limits, not only the linear middle
+
+
+def _random_policy(seed: int) -> MLPPolicy:
+    rng = np.random.default_rng(seed)
+    return MLPPolicy(
+        (rng.normal(0, 0.5, (8, 10)), rng.normal(0, 0.5, (1, 8))),
+        (rng.normal(0, 0.1, 8), np.zeros(1)),
+        "tanh",
+        False,
+        np.zeros(10),
+        np.ones(10),
+        10.0,
+    )
+
+
+def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly():
+    """The deployed composition (policy + base, decision period, rebuilt observation) is the
+    training environment's, bit for bit, for a policy that moves the setpoint every decision."""
+    policy = _random_policy(3)
+    residual_env = MicroGravityLandingEnv(condition=3, **RESIDUAL)
+    observation, info = residual_env.reset(seed=4)
+    xs, commands = [], []
+    for _ in range(600):  # 3 s
+        observation, _, _, _, info = residual_env.step(policy.predict(observation)[0])
+        xs.append(info["x_m"])
+        commands.append(info["command_m_s"])
+    controller = PolicyController(policy, decision_period=5, base=make_controller("feedforward", 1e-3))
+    deployed = run_episode(MicroGravityLandingEnv(condition=3), controller, seed=4, duration_s=3.0)
+    np.testing.assert_array_equal(deployed.x_m[5::5], np.array(xs))
+    np.testing.assert_array_equal(deployed.command_m_s[5::5], np.array(commands))
+    assert np.ptp(np.array(xs)) > 1e-7  # the policy did move x
+
+
+def test_an_exported_policy_round_trips_through_its_file(tmp_path):
+    policy = _random_policy(5)
+    policy.save(tmp_path / "policy.npz")
+    loaded = MLPPolicy.load(tmp_path / "policy.npz")
+    observation = np.linspace(-2, 2, 10)
+    assert loaded.predict(observation)[0] == policy.predict(observation)[0]
+    with pytest.raises(ValueError, match="chain"):
+        MLPPolicy(
+            (np.ones((4, 10)), np.ones((1, 5))),
+            (np.ones(4), np.ones(1)),
+            "tanh",
+            False,
+            np.zeros(10),
+            np.ones(10),
+            10.0,
+        )
+
+
+def test_a_policy_folder_runs_only_at_its_control_period(tmp_path):
+    venv = _vec_env()
+    from stable_baselines3 import PPO
+
+    model = PPO("MlpPolicy", venv, seed=0, device="cpu")
+    write_policy_folder(tmp_path / "policy", model, venv, {"env_kwargs": RESIDUAL})
+    controller = make_controller(str(tmp_path / "policy"), 1e-3)
+    assert controller.decision_period == 5
+    assert controller.base is not None
+    with pytest.raises(ValueError, match="trained at 1000 us"):
+        make_controller(str(tmp_path / "policy"), 5e-4)
+
+
+# -- training end to end -----------------------------------------------------------------------
+
+
+def _tiny_hyperparams(tmp_path: Path, algo: str) -> Path:
+    """The packaged entry with a budget a test can afford."""
+    entry = yaml.safe_load((REPO / "training" / "hyperparams" / f"{algo}.yml").read_text())[ENV_ID]
+    entry |= {"n_envs": 2, "policy_kwargs": "dict(net_arch=[16, 16])"}
+    entry |= {"n_steps": 64, "batch_size": 64, "n_epochs": 2} if algo == "ppo" else {}
+    entry |= {"learning_starts": 50, "buffer_size": 5000, "batch_size": 32} if algo == "sac" else {}
+    path = tmp_path / f"{algo}.yml"
+    path.write_text(yaml.safe_dump({ENV_ID: entry}))
+    return path
+
+
+def _settings(tmp_path, algo, timesteps, **kwargs):
+    return TrainSettings(
+        algo=algo,
+        timesteps=timesteps,
+        hyperparams=str(_tiny_hyperparams(tmp_path, algo)),
+        log_folder=str(tmp_path / "logs"),
+        eval_freq=128,
+        eval_episodes=1,
+        checkpoint_freq=128,
+        command="pytest",
+        **kwargs,
+    )
+
+
+@pytest.fixture(scope="module")
+def ppo_run(tmp_path_factory):
+    """A tiny PPO run of 256 steps, then resumed to 384."""
+    tmp_path = tmp_path_factory.mktemp("ppo")
+    folder = train(_settings(tmp_path, "ppo", 256))
+    first = json.loads((folder / "checkpoints" / "latest.json").read_text())
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    count_before = VecNormalize.load(str(folder / "vecnormalize.pkl"), _vec_env()).obs_rms.count
+    resumed = train(_settings(tmp_path, "ppo", 384), resume_folder=folder)
+    return folder, resumed, first, count_before
+
+
+def test_a_run_writes_every_artifact_of_the_zoos_layout(ppo_run):
+    folder, _, _, _ = ppo_run
+    assert folder.name == f"{ENV_ID}_1"
+    assert folder.parent.name == "ppo"
+    for name in (
+        "config.yml",
+        "args.yml",
+        f"{ENV_ID}.zip",
+        "vecnormalize.pkl",
+        "best_model.zip",
+        "best_vecnormalize.pkl",
+        "evaluations.json",
+        "train.log",
+        "monitor/0.monitor.csv",
+        "monitor/1.monitor.csv",
+        "policy/policy.npz",
+        "policy/policy.json",
+        "policy/model.zip",
+        "policy/vecnormalize.pkl",
+        "checkpoints/latest.json",
+        "checkpoints/rl_model_128_steps.zip",
+        "checkpoints/rl_model_vecnormalize_128_steps.pkl",
+    ):
+        assert (folder / name).is_file(), name
+    assert list((folder / "tb").rglob("events.out.tfevents.*"))
+    config = yaml.safe_load((folder / "config.yml").read_text())
+    assert hp.load("ppo", ENV_ID, folder / "config.yml").n_envs == 2  # itself a hyperparameter file
+    assert config[ENV_ID]["env_kwargs"]["base_controller"] == "feedforward"
+    evaluations = json.loads((folder / "evaluations.json").read_text())
+    assert [row["timesteps"] for row in evaluations][:2] == [128, 256]
+    for row in evaluations:  # the project's metrics, not only the return
+        assert {"compensation_error_pct", "collision_excursion_um", "free_fall_excursion_um", "cost"} <= set(row)
+        assert row["collision_excursion_um"] is not None
+        assert row["collision_excursion_um"] > 0
+    card = json.loads((folder / "policy" / "policy.json").read_text())
+    assert card["command"] == "pytest"
+    assert card["seed"] == 0
+    assert card["algo"] == "ppo"
+    assert card["timesteps"] in [row["timesteps"] for row in evaluations if row["best"]]
+
+
+def test_resume_continues_the_step_count_the_statistics_and_the_log(ppo_run):
+    folder, resumed, first, count_before = ppo_run
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    assert resumed == folder
+    assert first["timesteps"] == 256
+    latest = json.loads((folder / "checkpoints" / "latest.json").read_text())
+    assert latest["timesteps"] == 384
+    assert latest["sessions"] == 2
+    assert PPO.load(folder / f"{ENV_ID}.zip", device="cpu").num_timesteps == 384
+    statistics = VecNormalize.load(str(folder / "vecnormalize.pkl"), _vec_env())
+    assert statistics.obs_rms.count > count_before  # kept and moved on, not restarted
+    assert statistics.obs_rms.count > 384  # 384 steps plus the first session's resets
+    log = (folder / "train.log").read_text()
+    assert "resumed at 256 steps" in log
+    assert "384 steps in" in log
+    assert latest["wall_s"] >= first["wall_s"]
+    monitor = (folder / "monitor" / "0.monitor.csv").read_text().splitlines()
+    assert sum(line.startswith("#") for line in monitor) == 1  # appended to, not replaced
+
+
+def test_sac_resumes_with_its_replay_buffer(tmp_path):
+    from stable_baselines3 import SAC
+
+    folder = train(_settings(tmp_path, "sac", 128))
+    latest = json.loads((folder / "checkpoints" / "latest.json").read_text())
+    buffer = folder / "checkpoints" / latest["replay_buffer"]
+    assert buffer.is_file()
+    train(_settings(tmp_path, "sac", 192), resume_folder=folder)
+    latest = json.loads((folder / "checkpoints" / "latest.json").read_text())
+    assert latest["timesteps"] == 192
+    model = SAC.load(folder / "checkpoints" / latest["model"], device="cpu")
+    model.load_replay_buffer(folder / "checkpoints" / latest["replay_buffer"])
+    assert model.replay_buffer.size() == 192 // 2  # every step of both sessions, per environment
+    assert not buffer.exists()  # only the latest buffer is kept
+
+
+def test_ctrl_c_saves_a_checkpoint_that_resumes(tmp_path):
+    def interrupt(done, total):
+        if done >= 192:
+            raise KeyboardInterrupt
+
+    with pytest.raises(TrainingInterrupted, match="--resume"):
+        train(_settings(tmp_path, "ppo", 512), progress=interrupt)
+    folder = tmp_path / "logs" / "ppo" / f"{ENV_ID}_1"
+    latest = json.loads((folder / "checkpoints" / "latest.json").read_text())
+    assert latest["timesteps"] == 192
+    train(_settings(tmp_path, "ppo", 256), resume_folder=folder)
+    # On from 192 to at least 256, in PPO's whole rollouts of 2 x 64 steps.
+    assert json.loads((folder / "checkpoints" / "latest.json").read_text())["timesteps"] == 192 + 128
+
+
+def test_resume_refuses_what_it_cannot_continue(tmp_path):
+    with pytest.raises(ValueError, match="no checkpoint"):
+        train(_settings(tmp_path, "ppo", 128), resume_folder=tmp_path)
+    folder = train(_settings(tmp_path, "ppo", 128))
+    with pytest.raises(ValueError, match="already has 128 steps"):
+        train(_settings(tmp_path, "ppo", 128), resume_folder=folder)
+    with pytest.raises(ValueError, match="trains 'ppo'"):
+        train(_settings(tmp_path, "sac", 256), resume_folder=folder)
+
+
+def test_the_control_cost_is_the_tuners():
+    from microg_env.analysis.evaluate import run_with_metrics
+
+    env = MicroGravityLandingEnv(condition=2)
+    run = run_with_metrics(env, make_controller("pid", 1e-3), seed=0, duration_s=6.0)[2]
+    errors = [abs(e) for e in run.compensation_error_pct if math.isfinite(e)]
+    assert control_cost([run]) == pytest.approx(np.mean(errors) + run.flexible_unit_excursion_collision_m * 1e6 / 10)
+    failed = type(run)(**{**run.__dict__, "termination_reason": "guide_stroke_limit"})
+    assert control_cost([run, failed]) == math.inf
+
+
+# -- rl-baselines3-zoo as a client -------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_rl_zoo3_trains_from_the_same_hyperparameter_file(tmp_path):
+    pytest.importorskip("rl_zoo3")
+    command = [
+        sys.executable,
+        "-m",
+        "rl_zoo3.train",
+        "--algo",
+        "ppo",
+        "--env",
+        ENV_ID,
+        "--gym-packages",
+        "microg_env",
+        "-conf",
+        str(REPO / "training" / "hyperparams" / "ppo.yml"),
+        "-n",
+        "2048",
+        "--eval-freq",
+        "-1",
+        "-f",
+        str(tmp_path),
+        "--seed",
+        "0",
+        "--n-eval-envs",
+        "1",
+    ]
+    done = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    run = tmp_path / "ppo" / f"{ENV_ID}_1"
+    assert (run / f"{ENV_ID}.zip").is_file()
+    assert (run / ENV_ID / "vecnormalize.pkl").is_file()
+    config = (run / ENV_ID / "config.yml").read_text()
+    assert "feedforward" in config
+    assert "residual" in config
