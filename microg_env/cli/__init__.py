@@ -1,0 +1,55 @@
+"""The ``microg`` command.
+
+Every user error (a bad option or value, an unwritable output) prints one line to stderr naming
+the option and exits with code 2, before any work is done; output piped into a closed reader
+(``| head``) ends quietly. The commands live in :mod:`microg_env.cli.rig` (the rig and the paper)
+and :mod:`microg_env.cli.learning` (learned controllers); what they share in
+:mod:`microg_env.cli.common`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Sequence
+
+from microg_env.cli import learning, rig
+from microg_env.cli.common import Parser, UsageError, one_line
+
+__all__ = ["UsageError", "build_parser", "main"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(prog="microg", description="MuJoCo model of the QZS microgravity landing rig (Jia et al. 2024).")
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
+    rig.add_commands(commands)
+    learning.add_commands(commands)
+    return parser
+
+
+def _check_top_level(argv: list[str]) -> None:
+    """An option before the command: name it (argparse would only say the command is missing)."""
+    if argv and argv[0].startswith("-") and argv[0] not in ("-h", "--help"):
+        raise UsageError(f"microg: error: unrecognized option {argv[0]!r}; give a command first (microg --help)")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``microg`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        _check_top_level(argv)
+        args = build_parser().parse_args(argv)
+        args.argv = argv
+        return args.handler(args)
+    except UsageError as error:
+        print(one_line(str(error)), file=sys.stderr)
+        return 2
+    except ValueError as error:
+        print(f"microg: error: {one_line(str(error))}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        # The reader went away (| head): stop quietly, as Python's documentation recommends.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1

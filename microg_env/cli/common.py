@@ -1,0 +1,204 @@
+"""What every ``microg`` command shares: one-line usage errors, option types with bounds, options
+naming the errors they cause, the pad options, output-folder checks, a quiet progress stream."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S
+from microg_env.scenarios import MAX_DURATION_S, MIN_DURATION_S
+
+#: Seeds accepted on the command line (NumPy's and Gymnasium's seeds are non-negative).
+MAX_SEED = 2**32 - 1
+
+
+class UsageError(Exception):
+    """A bad command line; reported on one line with exit code 2."""
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # argparse would print the whole usage first
+        raise UsageError(f"{self.prog}: error: {one_line(message)}")
+
+
+def one_line(message: str) -> str:
+    """A message on one line (a value with a newline in it must not split the error)."""
+    return message.replace("\r", "\\r").replace("\n", "\\n")
+
+
+#: Words in the errors of the model and the environment, and the options of ``microg run`` that
+#: set them: an error is prefixed with the first option whose word it contains.
+RUN_OPTIONS = (
+    ("descent_height_m", "--height"),
+    ("Scenario.loads", "--load"),
+    ("LoadStep", "--load"),
+    ("loads totalling", "--load"),
+    ("duration", "--duration"),
+    ("control_period_s", "--control-period"),
+    ("physics_step_s", "--physics-step"),
+    ("stiffness", "--stiffness"),
+    ("damping", "--damping"),
+)
+
+#: The same for ``microg drop``: its errors may name several options.
+DROP_OPTIONS = (("mass", "--mass"), ("stiffness", "--stiffness"), ("damping", "--damping"), ("velocity", "--velocity"))
+
+
+def naming(error: ValueError, options: tuple[tuple[str, str], ...], every: bool = False) -> ValueError:
+    """``error`` prefixed with the option(s) whose word it contains."""
+    message = str(error)
+    if message.startswith("--"):  # already named
+        return error
+    named = [option for word, option in options if word in message]
+    if not every:
+        named = named[:1]
+    return ValueError(f"{', '.join(dict.fromkeys(named))}: {message}" if named else message)
+
+
+def number(low: float, high: float, unit: str, low_open: bool = True) -> Callable[[str], float]:
+    """An argparse type: a finite number in (low, high] (or [low, high]) in ``unit``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        below = value <= low if low_open else value < low
+        if not math.isfinite(value) or below or value > high:
+            bracket = "(" if low_open else "["
+            raise argparse.ArgumentTypeError(f"must be in {bracket}{low:g}, {high:g}] {unit}, got {text!r}")
+        return value
+
+    return parse
+
+
+def seed_number(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be an integer in [0, {MAX_SEED}], got {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """A count: a positive whole number, also written 1e6."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not (math.isfinite(value) and value.is_integer() and 1 <= value <= 1e12):
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
+    return int(value)
+
+
+def comma_list(text: str) -> list[str]:
+    """A comma-separated list (spaces around the commas allowed), with no empty items."""
+    items = [item.strip() for item in text.split(",")]
+    if not all(items):
+        raise argparse.ArgumentTypeError(f"empty item in {text!r}")
+    return items
+
+
+def check_writable_folder(path: str, option: str) -> None:
+    """``path`` is a folder this user may write in, or can be made one (nothing is created here)."""
+    if not path.strip():
+        raise ValueError(f"{option}: the folder name is empty")
+    folder = Path(os.path.abspath(path))
+    existing = folder
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"{option} {path!r}: {str(existing)!r} is not a folder")
+    try:  # the one reliable writability test (root passes os.access on read-only file systems)
+        tempfile.TemporaryDirectory(dir=existing).cleanup()
+    except OSError as error:
+        raise ValueError(f"{option} {path!r} is not writable ({error.strerror})") from None
+
+
+class ProgressStream:
+    """A progress bar's stream that goes quiet when its reader goes away (``2>&1 | head``): the
+    work and its results are not lost to a closed pipe."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+        self.open = True
+
+    def write(self, text: str) -> None:
+        if self.open:
+            try:
+                self.stream.write(text)
+            except BrokenPipeError:
+                self.open = False
+
+    def flush(self) -> None:
+        if self.open:
+            try:
+                self.stream.flush()
+            except BrokenPipeError:
+                self.open = False
+
+
+def pad_from_options(args: argparse.Namespace):
+    """The pad of ``--pad``, with ``--stiffness`` and ``--damping`` replacing its K and D."""
+    from microg_env.paper.calibration import pad_params
+
+    pad = pad_params(args.pad)
+    try:
+        if args.stiffness is not None:
+            pad = replace(pad, stiffness_n_per_m=args.stiffness)
+        if args.damping is not None:
+            pad = replace(pad, damping_n_s_per_m=args.damping)
+    except ValueError as error:
+        raise naming(error, RUN_OPTIONS) from None
+    return pad
+
+
+def add_pad_options(parser: argparse.ArgumentParser) -> None:
+    from microg_env.paper.calibration import PAD_NAMES
+
+    parser.add_argument(
+        "--pad",
+        choices=PAD_NAMES,
+        default="paper",
+        help="the pad: Table 1's K and D (paper), fitted to the experiments (calibrated) or to the paper's "
+        "simulation (paper-simulation)",
+    )
+    parser.add_argument(
+        "--stiffness", type=number(0.0, 1e12, "N/m"), metavar="N_PER_M", help="pad stiffness K (default: --pad's)"
+    )
+    parser.add_argument(
+        "--damping", type=number(0.0, 1e12, "N s/m"), metavar="N_S_PER_M", help="pad damping D (default: --pad's)"
+    )
+
+
+def add_duration_option(parser: argparse.ArgumentParser, help_text: str) -> None:
+    duration = number(MIN_DURATION_S, MAX_DURATION_S, "s", low_open=False)
+    parser.add_argument("--duration", type=duration, metavar="S", help=help_text)
+
+
+def add_physics_step_option(parser: argparse.ArgumentParser) -> None:
+    low, high = (1e6 * v for v in PHYSICS_STEP_RANGE_S)
+    parser.add_argument(
+        "--physics-step",
+        type=number(low, high, "us", low_open=False),
+        default=PHYSICS_STEP_S * 1e6,
+        metavar="US",
+        help=f"physics step (default {PHYSICS_STEP_S * 1e6:g}, chosen by a convergence study)",
+    )
+
+
+def controller_name(text: str) -> str:
+    from microg_env.controllers.registry import check_controller_name
+
+    try:
+        return check_controller_name(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error).removeprefix("controller ")) from None
