@@ -185,6 +185,14 @@ def _cases():
     yield ["run", "--controller", "residual-ppo", "--control-period", "500"], "trained at 1000 us"
     yield ["train", "--env", "CartPole-v1"], "--env"
     yield ["train", "--algo", "sac", "--resume", "{dir}"], "--resume"
+    yield ["train", "--n-envs", "100000"], "--n-envs"
+    yield ["train", "--eval-episodes", "5000"], "--eval-episodes"
+    yield ["compare", "--seeds", "5000"], "--seeds"
+    yield ["compare", "--workers", "1000"], "--workers"
+    yield ["run", "--load", "1@100", "--video", "landing.gif"], "--load"  # named with --video too
+    yield ["train", "-conf", "{hyperparams}", "--env", "CartPole-v1"], "error: --env"  # not blamed on the file
+    yield ["run", "--controller", "{broken_policy}"], "policy card"
+    yield ["compare", "--controllers", "{no_network}"], "policy.npz"
 
 
 @pytest.mark.parametrize(("args", "word"), list(_cases()), ids=lambda v: " ".join(v) if isinstance(v, list) else v)
@@ -198,7 +206,13 @@ def test_bad_input_is_one_line_naming_the_option_exit_2_and_writes_nothing(args,
     (folder / "dangling.png").symlink_to(folder / "nowhere.png")
     (folder / "dangling").symlink_to(folder / "nowhere")
     (folder / "dir-link").symlink_to(folder / "existing-dir")
+    (folder / "broken-policy").mkdir()
+    (folder / "broken-policy" / "policy.json").write_text("[1, 2]")
+    (folder / "no-network").mkdir()
+    (folder / "no-network" / "policy.json").write_text('{"env_kwargs": {}}')
+    (folder / "ppo.yml").write_text((REPO / "training" / "hyperparams" / "ppo.yml").read_text())
     places = {"{dir}": "existing-dir", "{file}": "existing-file", "{readonly}": "read-only"}
+    places |= {"{broken_policy}": "broken-policy", "{no_network}": "no-network", "{hyperparams}": "ppo.yml"}
     places |= {"{dangling}": "dangling", "{dirlink}": "dir-link"}
     for key, name in places.items():
         args = [a.replace(key, name) for a in args]
@@ -374,7 +388,10 @@ def test_train_and_resume_from_the_command_line(tmp_path, capsys):
     out = capsys.readouterr().out
     assert f"wrote {run}" in out
     assert "eval at 64 steps" in out
-    assert main(["train", "--resume", str(run), "--timesteps", "128", *common]) == 0
+    capsys.readouterr()
+    assert main(["train", "--resume", str(run), "--timesteps", "96", "--seed", "3"]) == 2  # a run keeps its settings
+    assert "--seed cannot change" in capsys.readouterr().err
+    assert main(["train", "--resume", str(run), "--timesteps", "128", *common]) == 0  # the same values may be given
     latest = json.loads((run / "checkpoints" / "latest.json").read_text())
     assert latest["timesteps"] == 128
     args_file = (run / "args.yml").read_text()

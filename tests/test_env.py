@@ -332,6 +332,7 @@ def test_bad_actions_raise(action):
         ({"xml_file": "/etc/hostname"}, "xml_file"),
         ({"reset_noise_scale": 0.3}, "reset_noise_scale"),
         ({"reset_noise_scale": -0.01}, "reset_noise_scale"),
+        ({"scenario_sampler": "training", "reset_noise_scale": 0.02}, "reset_noise_scale"),  # foot in the pad
         ({"render_mode": "ascii"}, "render_mode"),
         ({"imperfections": "all"}, "imperfections"),
         ({"params": {"pad": 1}}, "params"),

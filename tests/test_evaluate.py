@@ -47,3 +47,13 @@ def test_evaluation_harness_over_seeds():
     assert summary.mean == pytest.approx(np.mean(errors))
     assert summary.worst == max(errors)
     assert len(set(errors)) > 1  # the seeds change the noise
+
+
+def test_a_drawn_schedule_runs_to_its_own_duration():
+    """With a scenario sampler the duration is drawn at reset (here a few seconds): a longer cap
+    than condition 1's 30 s is accepted and the run ends at the drawn schedule's end."""
+    env = MicroGravityLandingEnv(scenario_sampler="training")
+    trajectory = run_episode(env, make_controller("pid", env.control_period_s), seed=0, duration_s=40.0)
+    drawn = env.active_scenario.duration_s
+    assert drawn < 30.0
+    assert trajectory.time_s[-1] == pytest.approx(drawn, abs=env.control_period_s)

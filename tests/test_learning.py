@@ -5,6 +5,7 @@ import json
 import math
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from microg_env.controllers import MLPPolicy, PolicyController, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import export_policy, write_policy_folder
-from microg_env.learning.train import TrainingInterrupted, TrainSettings, train
+from microg_env.learning.train import TrainingInterrupted, TrainSettings, resolve, resumed_run, session_seed, train
 
 pytest.importorskip("stable_baselines3")
 REPO = Path(__file__).resolve().parents[1]
@@ -313,14 +314,68 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(tmp_path):
     assert json.loads((folder / "checkpoints" / "latest.json").read_text())["timesteps"] == 192 + 128
 
 
+def test_a_resumed_target_survives_a_second_interruption(ppo_run, tmp_path):
+    """The run was resumed to 384 steps: that target, not the first 256, is what it continues to."""
+    folder, _, _, _ = ppo_run
+    _, settings, params, _ = resumed_run(folder, TrainSettings(timesteps=512))
+    assert params.n_timesteps == settings.timesteps == 512
+    with pytest.raises(ValueError, match="already has 384 steps"):
+        resumed_run(folder, TrainSettings())  # args.yml holds 384 now
+
+
+def test_resumed_sessions_never_draw_reserved_seeds():
+    assert session_seed(7, 0) == 7
+    seeds = {session_seed(0, steps) for steps in (500, 1000, 1001, 10**6)}
+    assert len(seeds) == 4
+    assert min(seeds) >= 2**20  # above the validation (500+) and test (1000+) seeds
+
+
+def test_a_run_shorter_than_the_evaluation_period_still_exports_its_policy(tmp_path):
+    folder = train(replace(_settings(tmp_path, "ppo", 128), eval_freq=10**6))
+    assert (folder / "policy" / "policy.json").is_file()
+    assert len(json.loads((folder / "evaluations.json").read_text())) == 1
+
+
+def test_an_interrupted_policy_export_leaves_the_previous_one(tmp_path, monkeypatch):
+    from microg_env.learning import export
+
+    folder = train(_settings(tmp_path, "ppo", 128))
+    policy = folder / "policy"
+    before = {p.name: p.read_bytes() for p in policy.iterdir()}
+
+    def fail(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(export, "export_policy", fail)
+    with pytest.raises(KeyboardInterrupt):
+        export.write_policy_folder(policy, None, None, {"env_kwargs": {}})
+    assert {p.name: p.read_bytes() for p in policy.iterdir()} == before
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ("  n_timesteps: 1000\n  env_kwargs: {foo: 1}\n", "env_kwargs"),
+        ("  n_timesteps: 1000\n  n_stepz: 4\n", "'n_stepz' is not an argument of PPO"),
+    ],
+)
+def test_entries_the_environment_or_the_algorithm_refuse_are_named_before_a_run_folder(tmp_path, entry, message):
+    path = tmp_path / "bad.yml"
+    path.write_text(f"{ENV_ID}:\n  n_envs: 1\n{entry}")
+    with pytest.raises(ValueError, match=message):
+        resolve(TrainSettings(hyperparams=str(path)))
+    assert not (tmp_path / "logs").exists()
+
+
 def test_resume_refuses_what_it_cannot_continue(tmp_path):
     with pytest.raises(ValueError, match="no checkpoint"):
         train(_settings(tmp_path, "ppo", 128), resume_folder=tmp_path)
     folder = train(_settings(tmp_path, "ppo", 128))
     with pytest.raises(ValueError, match="already has 128 steps"):
         train(_settings(tmp_path, "ppo", 128), resume_folder=folder)
-    with pytest.raises(ValueError, match="trains 'ppo'"):
-        train(_settings(tmp_path, "sac", 256), resume_folder=folder)
+    train(_settings(tmp_path, "sac", 256), resume_folder=folder)  # a run continues with its own settings
+    assert yaml.safe_load((folder / "args.yml").read_text())["algo"] == "ppo"
+    assert json.loads((folder / "checkpoints" / "latest.json").read_text())["timesteps"] == 256
 
 
 def test_the_control_cost_is_the_tuners():

@@ -25,6 +25,8 @@ from microg_env.scenarios import Scenario, comparison_scenarios
 
 #: First test seed: training seeds its environments from 0 (``n_envs`` of them), validation from 500.
 TEST_SEED = 1000
+#: Most seeds per scenario and worker processes a comparison takes.
+MAX_SEEDS, MAX_WORKERS = 1000, 256
 #: The window of x kept for the figure, s before and after the first touchdown.
 X_WINDOW_S = (-1.0, 3.0)
 
@@ -212,8 +214,8 @@ def compare(
         check_controller_name(controller)
     if not controllers or not names:
         raise ValueError("give at least one controller and one scenario")
-    validate.integer("seeds", seeds, 1, 1000)
-    workers = validate.integer("workers", workers, 1, 256)
+    validate.integer("seeds", seeds, 1, MAX_SEEDS)
+    workers = validate.integer("workers", workers, 1, MAX_WORKERS)
     seed_list = tuple(range(first_seed, first_seed + seeds))
     jobs = [
         _Job(Case(c, s, seed), known[s], randomize, control_period_s, duration_s, keep_x=seed == seed_list[0])

@@ -19,6 +19,7 @@ from microg_env.analysis.metrics import RunMetrics, compute_metrics
 from microg_env.analysis.trajectory import Trajectory, TrajectoryRecorder
 from microg_env.controllers.base import Controller
 from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.scenarios import MAX_DURATION_S
 from microg_env.sim.reference import simulate_reference
 
 
@@ -45,11 +46,14 @@ def run_episode(
     the reset and after every step (e.g. to render a video).
     """
     rig_env = _rig_env(env)
-    scenario_duration = rig_env.scenario.duration_s
-    if duration_s is not None:
-        validate.positive("duration_s", duration_s, "s", scenario_duration, "the scenario's duration")
-    steps = round((scenario_duration if duration_s is None else duration_s) / rig_env.control_period_s)
+    if duration_s is not None:  # a drawn schedule's duration is known only after the reset: it caps
+        if rig_env.scenario_sampler is not None:
+            validate.positive("duration_s", duration_s, "s", MAX_DURATION_S, "the longest run")
+        else:
+            validate.positive("duration_s", duration_s, "s", rig_env.scenario.duration_s, "the scenario's duration")
     obs, info = env.reset(seed=seed)
+    scenario_duration = rig_env.active_scenario.duration_s
+    steps = round(min(scenario_duration, duration_s or scenario_duration) / rig_env.control_period_s)
     controller.reset()
     recorder = TrajectoryRecorder()
     recorder.append(info)

@@ -88,15 +88,19 @@ def seed_number(text: str) -> int:
     return value
 
 
-def positive_int(text: str) -> int:
-    """A count: a positive whole number, also written 1e6."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not (math.isfinite(value) and value.is_integer() and 1 <= value <= 1e12):
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
-    return int(value)
+def count(high: float = 1e12) -> Callable[[str], int]:
+    """An argparse type: a whole number in [1, high], also written 1e6."""
+
+    def parse(text: str) -> int:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+        if not (math.isfinite(value) and value.is_integer() and 1 <= value <= high):
+            raise argparse.ArgumentTypeError(f"must be an integer in [1, {high:g}], got {text!r}")
+        return int(value)
+
+    return parse
 
 
 def comma_list(text: str) -> list[str]:

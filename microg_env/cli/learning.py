@@ -8,15 +8,31 @@ import shlex
 import sys
 from pathlib import Path
 
+from microg_env.analysis.comparison import MAX_SEEDS, MAX_WORKERS, TEST_SEED
 from microg_env.cli.common import (
     ProgressStream,
     add_duration_option,
     check_writable_folder,
     comma_list,
-    positive_int,
+    count,
     seed_number,
 )
 from microg_env.controllers.registry import CONTROLLER_NAMES
+from microg_env.learning.hyperparams import ALGORITHMS
+from microg_env.learning.train import MAX_ENVS, MAX_EVAL_EPISODES, TrainSettings
+
+#: ``microg train``'s options that set a run (``args.yml``), by the TrainSettings field they fill.
+_RUN_FIELDS = {
+    "--algo": "algo",
+    "--env": "env_id",
+    "--seed": "seed",
+    "--n-envs": "n_envs",
+    "--hyperparams": "hyperparams",
+    "--log-folder": "log_folder",
+    "--eval-freq": "eval_freq",
+    "--eval-episodes": "eval_episodes",
+    "--checkpoint-freq": "checkpoint_freq",
+}
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
@@ -25,34 +41,30 @@ def _cmd_train(args: argparse.Namespace) -> int:
         import torch  # noqa: F401
         from tqdm import tqdm
 
-        from microg_env.learning.train import TrainingInterrupted, TrainSettings, resolve, resumed_run, train
+        from microg_env.learning.train import TrainingInterrupted, resolve, resumed_run, train
     except ImportError:
         raise ValueError("microg train needs the train extra: pip install 'microg-env[train]'") from None
-    settings = TrainSettings(
-        algo=args.algo,
-        env_id=args.env,
-        seed=args.seed,
-        timesteps=args.timesteps,
-        n_envs=args.n_envs,
-        hyperparams=args.hyperparams,
-        log_folder=args.log_folder,
-        eval_freq=args.eval_freq,
-        eval_episodes=args.eval_episodes,
-        checkpoint_freq=args.checkpoint_freq,
-        command=" ".join(["microg", *map(shlex.quote, args.argv)]),
-    )
+    given = {field: getattr(args, field) for field in _RUN_FIELDS.values() if getattr(args, field) is not None}
+    command = " ".join(["microg", *map(shlex.quote, args.argv)])
+    settings = TrainSettings(**given, timesteps=args.timesteps, command=command)
     resume = None
     if args.resume is not None:
         resume = Path(args.resume)
         if not (args.resume.strip() and resume.is_dir()):
             raise ValueError(f"--resume {args.resume!r}: no such run folder")
-        resumed_run(resume, settings)  # a run that cannot be continued is named before anything is written
+        _, run, _, _ = resumed_run(resume, settings)  # a run that cannot go on is named before anything is written
+        changed = [
+            option for option, field in _RUN_FIELDS.items() if field in given and given[field] != getattr(run, field)
+        ]
+        if changed:
+            raise ValueError(f"--resume: {', '.join(changed)} cannot change; a run continues with its own args.yml")
     else:
         try:
             resolve(settings)  # a bad file or entry is named before anything is written
         except ValueError as error:
-            raise ValueError(f"--hyperparams: {error}" if args.hyperparams is not None else str(error)) from None
-        check_writable_folder(args.log_folder, "--log-folder")
+            named = args.hyperparams is not None and not str(error).startswith("--")
+            raise ValueError(f"--hyperparams: {error}" if named else str(error)) from None
+        check_writable_folder(settings.log_folder, "--log-folder")
     stream = ProgressStream(sys.stderr)
     with tqdm(total=0, unit="step", unit_scale=True, desc=f"train {args.algo}", file=stream, disable=args.quiet) as bar:
 
@@ -74,7 +86,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     from microg_env.analysis import comparison, comparison_report
-    from microg_env.controllers.registry import CONTROLLER_NAMES, check_controller_name
+    from microg_env.controllers.registry import check_controller_name
     from microg_env.scenarios import comparison_scenarios
 
     controllers = args.controllers or list(CONTROLLER_NAMES)
@@ -126,44 +138,40 @@ def add_commands(commands) -> None:
         "<algo>.yml (packaged), into logs/<algo>/<env>_<n>/: config, best model, normalisation, checkpoints, "
         "TensorBoard events, monitor files, evaluations by the project's metrics and the exported policy.",
     )
-    train.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="algorithm (stable-baselines3)")
-    train.add_argument("--env", default="MicroGravityLanding-v1", help="environment id")
-    train.add_argument("--seed", type=seed_number, default=0, help="seed of the model and the training environments")
-    train.add_argument("--timesteps", type=positive_int, metavar="N", help="steps to train (default: the file's)")
-    train.add_argument("--n-envs", type=positive_int, metavar="N", help="environments (default: the file's)")
+    defaults = TrainSettings()
+    train.add_argument("--algo", choices=ALGORITHMS, help=f"algorithm, stable-baselines3's (default {defaults.algo})")
+    train.add_argument("--env", dest="env_id", metavar="ENV", help=f"environment id (default {defaults.env_id})")
+    train.add_argument(
+        "--seed", type=seed_number, help=f"seed of the model and the training environments (default {defaults.seed})"
+    )
+    train.add_argument("--timesteps", type=count(), metavar="N", help="steps to train (default: the file's)")
+    train.add_argument("--n-envs", type=count(MAX_ENVS), metavar="N", help="environments (default: the file's)")
     train.add_argument(
         "-conf",
         "--hyperparams",
         metavar="FILE",
         help="hyperparameter file in rl-baselines3-zoo's format (default: the packaged <algo>.yml)",
     )
-    train.add_argument("--log-folder", default="logs", metavar="DIR", help="where runs go (default logs)")
-    from microg_env.learning.train import TrainSettings
-
-    defaults = TrainSettings(algo="ppo")
+    train.add_argument("--log-folder", metavar="DIR", help=f"where runs go (default {defaults.log_folder})")
     train.add_argument(
-        "--eval-freq",
-        type=positive_int,
-        default=defaults.eval_freq,
-        metavar="N",
-        help=f"steps between evaluations (default {defaults.eval_freq})",
+        "--eval-freq", type=count(), metavar="N", help=f"steps between evaluations (default {defaults.eval_freq})"
     )
     train.add_argument(
         "--eval-episodes",
-        type=positive_int,
-        default=defaults.eval_episodes,
+        type=count(MAX_EVAL_EPISODES),
         metavar="N",
         help=f"validation episodes per evaluation (default {defaults.eval_episodes})",
     )
     train.add_argument(
         "--checkpoint-freq",
-        type=positive_int,
-        default=defaults.checkpoint_freq,
+        type=count(),
         metavar="N",
         help=f"steps between checkpoints (default {defaults.checkpoint_freq})",
     )
     train.add_argument(
-        "--resume", metavar="RUN", help="continue the run in folder RUN from its last checkpoint (to --timesteps)"
+        "--resume",
+        metavar="RUN",
+        help="continue the run in folder RUN from its last checkpoint, with its own settings (to --timesteps)",
     )
     train.add_argument("--quiet", action="store_true", help="no progress bar")
     train.set_defaults(handler=_cmd_train)
@@ -187,13 +195,21 @@ def add_commands(commands) -> None:
         metavar="A,B,...",
         help="condition-1, condition-2, condition-3, heavy-second, light-long (default: all)",
     )
-    compare.add_argument("--seeds", type=positive_int, default=5, metavar="N", help="seeds per scenario (default 5)")
     compare.add_argument(
-        "--first-seed", type=seed_number, default=1000, metavar="S", help="first seed (default 1000, above training's)"
+        "--seeds", type=count(MAX_SEEDS), default=5, metavar="N", help="seeds per scenario (default 5)"
+    )
+    compare.add_argument(
+        "--first-seed",
+        type=seed_number,
+        default=TEST_SEED,
+        metavar="S",
+        help=f"first seed (default {TEST_SEED}, above training's and validation's)",
     )
     compare.add_argument("--randomize", action="store_true", help="randomised plants, drawn from each seed")
     add_duration_option(compare, "cap on each episode's simulated time (default: the scenario's)")
-    compare.add_argument("--workers", type=positive_int, default=1, metavar="N", help="parallel processes (default 1)")
+    compare.add_argument(
+        "--workers", type=count(MAX_WORKERS), default=1, metavar="N", help="parallel processes (default 1)"
+    )
     compare.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     compare.add_argument(
         "--out", metavar="DIR", help="also write comparison.md, comparison.json and figures to DIR (replaced)"

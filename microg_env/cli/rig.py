@@ -178,20 +178,24 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from microg_env.analysis.plots import figure_class
 
         figure_class()  # fail now, not after the run, if matplotlib is missing
+    try:
+        scenario = _scenario(args)
+    except ValueError as error:
+        raise naming(error, RUN_OPTIONS) from None
     video = None
     if args.video is not None:
         from microg_env.analysis.video import VIDEO_SIZE, VIDEO_SUFFIXES, LandingVideo, check_video_support
 
         path = check_output_file(args.video, "--video", VIDEO_SUFFIXES)
         check_video_support(path)
-        title = f"microg: {_scenario(args).name}, {args.controller}, seed {args.seed}"
+        title = f"microg: {scenario.name}, {args.controller}, seed {args.seed}"
         video = LandingVideo(path, title)
     if args.randomize and args.ideal:
         raise ValueError("--randomize: an --ideal rig has nothing to randomise; give one of them")
     period, step = args.control_period * 1e-6, args.physics_step * 1e-6
     try:
         env = MicroGravityLandingEnv(
-            scenario=_scenario(args),
+            scenario=scenario,
             control_period_s=period,
             physics_step_s=step,
             imperfections=Imperfections.none() if args.ideal else Imperfections(),

@@ -63,8 +63,3 @@ class Readings:
             get("height"),
             get("placed_load"),
         )
-
-
-def speed_action(speed_m_s: float) -> np.ndarray:
-    """The action commanding ``speed_m_s``, clipped to the drive's range."""
-    return np.array([min(max(speed_m_s / MAX_SPEED_M_S, -1.0), 1.0)], dtype=np.float32)

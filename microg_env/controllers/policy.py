@@ -17,6 +17,7 @@ and the command, seed, budget and results of their training (``policy.json``).
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -183,6 +184,8 @@ def policy_card(folder: str | Path) -> dict[str, Any]:
         raise ValueError(f"policy folder {str(folder)!r} has no {CARD_FILE}") from None
     except (OSError, json.JSONDecodeError) as error:
         raise ValueError(f"cannot read {str(path)!r}: {error}") from None
+    if not (isinstance(card, dict) and isinstance(card.get("env_kwargs"), dict)):
+        raise ValueError(f"{str(path)!r} is not a policy card (a JSON object with an env_kwargs object)")
     return card
 
 
@@ -192,10 +195,19 @@ def shipped_policy_folder(name: str) -> Path:
     return Path(str(resources.files("microg_env").joinpath("policies", name)))
 
 
+def check_policy_folder(folder: str | Path) -> tuple[dict[str, Any], MLPPolicy]:
+    """The card and network of an exported policy folder, or a ValueError naming what is wrong."""
+    card = policy_card(folder)
+    try:
+        return card, MLPPolicy.load(Path(folder) / NETWORK_FILE)
+    except (OSError, KeyError, ValueError, TypeError, zipfile.BadZipFile) as error:
+        raise ValueError(f"policy folder {str(folder)!r}: cannot read {NETWORK_FILE} ({error})") from None
+
+
 def load_policy(folder: str | Path, control_period_s: float) -> PolicyController:
     """The exported policy in ``folder`` as a controller; it must run at the control period it
     was trained at (its decision period and base controller's tuning are tied to it)."""
-    card = policy_card(folder)
+    card, policy = check_policy_folder(folder)
     env = card["env_kwargs"]
     trained_period = float(env.get("control_period_s", 1e-3))
     if abs(control_period_s - trained_period) > 1e-9:
@@ -203,7 +215,7 @@ def load_policy(folder: str | Path, control_period_s: float) -> PolicyController
             f"control_period_s {control_period_s!r}: policy {Path(folder).name!r} was trained at "
             f"{trained_period * 1e6:g} us and runs only at that period"
         )
-    return deployed_controller(MLPPolicy.load(Path(folder) / NETWORK_FILE), env)
+    return deployed_controller(policy, env)
 
 
 def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyController:

@@ -11,7 +11,13 @@ from pathlib import Path
 from microg_env.controllers.base import Controller
 from microg_env.controllers.feedforward import Feedforward
 from microg_env.controllers.pid import PID, load_gains
-from microg_env.controllers.policy import CARD_FILE, load_policy, shipped_policies, shipped_policy_folder
+from microg_env.controllers.policy import (
+    CARD_FILE,
+    check_policy_folder,
+    load_policy,
+    shipped_policies,
+    shipped_policy_folder,
+)
 from microg_env.params import RigParams
 
 #: The classical baselines: the paper's PID, its derivative-on-measurement variant, and the PID
@@ -28,7 +34,10 @@ def is_policy_folder(name: str) -> bool:
 
 def check_controller_name(name: str) -> str:
     """``name`` if it selects a controller, else a ValueError listing what does."""
-    if name in CONTROLLER_NAMES or is_policy_folder(name):
+    if name in CONTROLLER_NAMES:
+        return name
+    if is_policy_folder(name):
+        check_policy_folder(name)  # a broken folder is named now, not after the work has started
         return name
     raise ValueError(
         f"controller must be one of {', '.join(CONTROLLER_NAMES)} or a policy folder (holding {CARD_FILE}), "

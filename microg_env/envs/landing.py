@@ -96,16 +96,18 @@ class MicroGravityLandingEnv(gym.Env):
     ## Rewards
     Per control period, ``x_reward(x) = 1 - log(1 + (x/x0)^2) / log(1 + (x_max/x0)^2)`` with x the
     true relative displacement, x0 = ``reward_scale_m`` (10 nm, twice the ruler's step) and x_max
-    the guide's half stroke: it falls by the same amount for every decade of x, from nanometres to
-    millimetres, and lies in [0, 1]. A step's reward is its mean over the control periods it spans.
-    Never negative, it never makes ending an episode pay. ``info["reward_x"]`` holds it.
+    the guide's half stroke less the stop margin, 24.9 mm, where the episode ends: it falls by the
+    same amount for every decade of x, from nanometres to millimetres, and lies in [0, 1]. A step's
+    reward is its mean over the control periods it spans. Never negative, it never makes ending an
+    episode pay. ``info["reward_x"]`` holds it.
 
     ## Starting State
     Balanced at rest with the foot at the scenario's descent height, plus a uniform perturbation
     of +-``reset_noise_scale`` m that must keep the start at least 1 mm above the pad and above
-    every load's switch height; x = 0, servo holding, the balancer trimmed at that height. The
-    scenario's first test weight is placed at t = 0; later ones when the foot comes down to their
-    height (condition 3: 1 kg more at 25 mm).
+    every load's switch height (0 with a ``scenario_sampler``, which draws the height itself);
+    x = 0, servo holding, the balancer trimmed at that height. The scenario's first test weight is
+    placed at t = 0; later ones when the foot comes down to their height (condition 3: 1 kg more at
+    25 mm).
 
     ## Episode End
     Terminated when x reaches the 50 mm guide stroke, the support the screw's 480 mm stroke, or
@@ -195,6 +197,11 @@ class MicroGravityLandingEnv(gym.Env):
         self.residual_limit_m = validate.positive("residual_limit_m", residual_limit_m, "m", 1e-3)
         self.reward_scale_m = validate.between("reward_scale_m", reward_scale_m, 1e-12, 1e-3, "m")
         self.reset_noise_scale = _check_reset_noise(reset_noise_scale, self.scenario)
+        if self.scenario_sampler is not None and self.reset_noise_scale > 0:
+            raise ValueError(
+                f"reset_noise_scale {reset_noise_scale!r} m: a scenario_sampler draws the start height itself "
+                "(its descent_height_m range); give one or the other"
+            )
         if render_mode is not None:
             validate.choice("render_mode", render_mode, tuple(self.metadata["render_modes"]))
         if render_mode == "human":

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy
-from microg_env.files import atomic_path, write_text
+from microg_env.files import replace_folder
 
 #: stable-baselines3's files in a policy folder, for fine-tuning and the zoo's ``enjoy``.
 MODEL_FILE, NORMALIZATION_FILE = "model.zip", "vecnormalize.pkl"
@@ -59,13 +59,14 @@ def export_policy(model: Any, vecnormalize: Any | None) -> MLPPolicy:
 
 def write_policy_folder(folder: Path, model: Any, vecnormalize: Any | None, card: dict[str, Any]) -> None:
     """Write ``folder``: the exported network, its card, and stable-baselines3's model and
-    normalisation statistics. Each file is written atomically; the card last, so a folder with a
-    card is complete."""
-    folder.mkdir(parents=True, exist_ok=True)
-    export_policy(model, vecnormalize).save(folder / NETWORK_FILE)
-    with atomic_path(folder / MODEL_FILE) as temporary:
-        model.save(temporary)  # SB3 keeps a path with a suffix as it is
-    if vecnormalize is not None:
-        with atomic_path(folder / NORMALIZATION_FILE) as temporary:
-            vecnormalize.save(str(temporary))
-    write_text(folder / CARD_FILE, json.dumps(card, indent=2) + "\n")
+    normalisation statistics, swapped in whole once complete (an interrupted write leaves the
+    previous folder as it was)."""
+
+    def fill(staging: Path) -> None:
+        export_policy(model, vecnormalize).save(staging / NETWORK_FILE)
+        model.save(staging / MODEL_FILE)  # SB3 keeps a path with a suffix as it is
+        if vecnormalize is not None:
+            vecnormalize.save(str(staging / NORMALIZATION_FILE))
+        (staging / CARD_FILE).write_text(json.dumps(card, indent=2) + "\n", encoding="utf-8")
+
+    replace_folder(folder, fill)

@@ -80,6 +80,10 @@ def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
     if not isinstance(table, dict) or env_id not in table:
         known = ", ".join(map(str, table)) if isinstance(table, dict) else "none"
         raise ValueError(f"hyperparameter file {str(path)!r} has no entry {env_id!r} (entries: {known})")
+    if not isinstance(table[env_id], dict):
+        raise ValueError(
+            f"hyperparameter file {str(path)!r}: entry {env_id!r} must be a mapping, got {table[env_id]!r}"
+        )
     entry = dict(table[env_id])
     where = f"{path.name}[{env_id}]"
     for key in UNSUPPORTED_KEYS:

@@ -58,11 +58,15 @@ class TrainingInterrupted(Exception):
     """Training stopped by the user after saving a checkpoint."""
 
 
+#: Most training environments and validation episodes a run takes.
+MAX_ENVS, MAX_EVAL_EPISODES = 256, 1000
+
+
 @dataclass(frozen=True)
 class TrainSettings:
     """What a run is asked to do (``args.yml``)."""
 
-    algo: str
+    algo: str = "ppo"
     env_id: str = ENV_IDS[0]
     seed: int = 0
     timesteps: int | None = None  # None: the hyperparameter file's n_timesteps
@@ -79,6 +83,14 @@ def algorithm(name: str):
     from stable_baselines3 import PPO, SAC
 
     return {"ppo": PPO, "sac": SAC}[name]
+
+
+def session_seed(seed: int, steps_done: int) -> int:
+    """The first training environment's seed in a session that starts after ``steps_done`` steps:
+    the run's seed, then seeds drawn from (seed, steps), at least 2^20: never a validation or test seed."""
+    if steps_done == 0:
+        return seed
+    return int(np.random.SeedSequence([seed, steps_done]).generate_state(1)[0]) | 1 << 20
 
 
 def new_run_folder(log_folder: str | Path, algo: str, env_id: str) -> Path:
@@ -119,6 +131,7 @@ def train(
         state = {"timesteps": 0, "wall_s": 0.0, "best_cost": None, "sessions": 0, "resume_commands": []}
     else:
         folder, settings, params, state = resumed_run(Path(resume_folder), settings)
+        write_text(folder / "args.yml", yaml.safe_dump(asdict(settings), sort_keys=False))  # the new target
     run = _Run(folder, settings, params, state, progress, log)
     return run.learn()
 
@@ -132,7 +145,26 @@ def resolve(settings: TrainSettings) -> hp.Hyperparams:
         params = replace(params, n_timesteps=settings.timesteps)
     if settings.n_envs is not None:
         params = replace(params, n_envs=settings.n_envs)
+    check_entry(params)
     return params
+
+
+def check_entry(params: hp.Hyperparams) -> None:
+    """The entry's env_kwargs make the environment and its other keys are the algorithm's keyword
+    arguments: checked before a run folder is made, so a bad file is named and nothing is written."""
+    import inspect
+
+    import gymnasium as gym
+
+    where = f"{Path(params.source).name}[{params.env_id}]"
+    try:
+        gym.make(params.env_id, **params.env_kwargs).close()
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{where}.env_kwargs: {error}") from None
+    accepted = inspect.signature(algorithm(params.algo)).parameters
+    unknown = [key for key in params.algo_kwargs if key not in accepted or key in ("env", "policy")]
+    if unknown:
+        raise ValueError(f"{where}: {', '.join(map(repr, unknown))} is not an argument of {params.algo.upper()}")
 
 
 def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings, hp.Hyperparams, dict[str, Any]]:
@@ -148,12 +180,11 @@ def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings
     except (OSError, yaml.YAMLError, json.JSONDecodeError) as error:
         raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({error})") from None
     settings = TrainSettings(**args)
-    if asked.algo != settings.algo:
-        raise ValueError(f"--algo {asked.algo!r}: the run in {str(folder)!r} trains {settings.algo!r}")
     params = hp.load(settings.algo, settings.env_id, folder / "config.yml")
-    if asked.timesteps is not None:
-        params = replace(params, n_timesteps=asked.timesteps)
-        settings = replace(settings, timesteps=asked.timesteps)
+    target = asked.timesteps if asked.timesteps is not None else settings.timesteps  # args.yml keeps the last
+    if target is not None:
+        params = replace(params, n_timesteps=target)
+        settings = replace(settings, timesteps=target)
     if params.n_timesteps <= state["timesteps"]:
         raise ValueError(
             f"--timesteps {params.n_timesteps}: the run in {str(folder)!r} already has {state['timesteps']} steps; "
@@ -240,8 +271,9 @@ class _Run:
 
         resuming = self.state["timesteps"] > 0
         self.state["sessions"] += 1
-        # Envs are seeded seed..seed+n-1; a resumed session moves on by the steps already run.
-        venv = self._environments(self.settings.seed + self.state["timesteps"], resuming)
+        # Envs are seeded seed..seed+n-1; a resumed session draws fresh seeds from (seed, steps run),
+        # far from the validation (500+) and test (1000+) seeds.
+        venv = self._environments(session_seed(self.settings.seed, self.state["timesteps"]), resuming)
         model = self._model(venv, resuming)
         target = self.params.n_timesteps
         command = (self.state.get("resume_commands") or [""])[-1] if resuming else self.settings.command
@@ -267,6 +299,8 @@ class _Run:
         if interrupted:
             self.log(f"interrupted at {model.num_timesteps} steps; continue with: microg train --resume {self.folder}")
             raise TrainingInterrupted(f"interrupted; continue with: microg train --resume {self.folder}")
+        if not self.evaluations:  # shorter than --eval-freq: evaluate (and export) once at the end
+            self.evaluate(model)
         with atomic_path(self.folder / f"{self.params.env_id}.zip") as temporary:
             model.save(temporary)
         normalization = model.get_vec_normalize_env()
@@ -331,6 +365,9 @@ class _Run:
         best = self.state["best_cost"]
         new_best = math.isfinite(cost) and (best is None or cost < best)
         row = {key: _json_number(value) for key, value in row.items()} | {"best": new_best}
+        if new_best:  # saved before it is recorded: a best in evaluations.json is always on disk
+            self.save_best(model, row)
+            self.state["best_cost"] = cost
         self.evaluations.append(row)
         write_text(self.folder / EVALUATIONS, json.dumps(self.evaluations, indent=1) + "\n")
         self.log(
@@ -340,9 +377,6 @@ class _Run:
             f"collision {_show(row['collision_excursion_um'], '.3f')} um, failures {failure_rate:.0%}"
             + (" (new best)" if new_best else "")
         )
-        if new_best:
-            self.state["best_cost"] = cost
-            self.save_best(model, row)
 
     def save_best(self, model, row: dict[str, Any]) -> None:
         with atomic_path(self.folder / "best_model.zip") as temporary:
