@@ -171,6 +171,14 @@ def data_folder(installed: str, source: str, probe: str) -> Path:
     )
 
 
+def check_writable(folder: Path, option: str, given: str) -> None:
+    """ValueError naming ``option`` unless this user can create entries in ``folder``."""
+    try:  # the one reliable writability test (root passes os.access on read-only file systems)
+        tempfile.TemporaryDirectory(dir=folder).cleanup()
+    except OSError as error:
+        raise ValueError(f"{option} {given!r} is not writable ({error.strerror})") from None
+
+
 def check_output_folder(out: str | Path, option: str, own_files: Iterable[str], what: str) -> None:
     """Raise ValueError if ``out`` cannot take a folder of results (before any work is done).
 
@@ -200,7 +208,4 @@ def check_output_folder(out: str | Path, option: str, own_files: Iterable[str], 
                 f"{option} {text!r} holds files that are not {what} ({', '.join(others[:3])}); "
                 f"give a new folder, an empty one or an earlier {what.removeprefix('a ').removeprefix('an ')}"
             )
-    try:  # the one reliable writability test (root passes os.access on read-only file systems)
-        tempfile.TemporaryDirectory(dir=parent).cleanup()
-    except OSError as error:
-        raise ValueError(f"{option} {text!r} is not writable ({error.strerror})") from None
+    check_writable(parent, option, text)

@@ -34,6 +34,8 @@ PHYSICS_STEP_S = 1.0e-4
 #: Physics steps accepted, s: finer than 10 us buys nothing measurable, coarser than 1 ms does not
 #: resolve the drive's 100 Hz speed loop.
 PHYSICS_STEP_RANGE_S = (1.0e-5, 1.0e-3)
+#: Default control period, s: the paper's 1 kHz loop (Section 4.1), at which the shipped policy was trained.
+CONTROL_PERIOD_S = 1.0e-3
 #: Control periods accepted, s: the RTX timer's fastest period (100 us, Section 4.1) to 10 ms.
 CONTROL_PERIOD_RANGE_S = (1.0e-4, 1.0e-2)
 #: Most control steps one run may take (a 30 s test at the fastest period is 300 000).

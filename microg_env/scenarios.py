@@ -83,6 +83,14 @@ class Scenario:
         return hash((self.name, self.loads, self.descent_height_m, self.duration_s, tuple(self.overrides.items())))
 
     @property
+    def loads_text(self) -> str:
+        """The schedule's weights in words: ``0.05 kg, 1 kg at 25 mm``."""
+        return ", ".join(
+            f"{load.mass_kg:g} kg" + ("" if load.height_m is None else f" at {load.height_m * 1e3:g} mm")
+            for load in self.loads
+        )
+
+    @property
     def stages_kg(self) -> tuple[float, ...]:
         """Total external load of each stage, kg (the weights placed so far)."""
         return tuple(itertools.accumulate(load.mass_kg for load in self.loads))

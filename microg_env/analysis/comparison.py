@@ -19,8 +19,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from microg_env import validate
-from microg_env.analysis.evaluate import Summary, run_with_metrics, summarise
+from microg_env.analysis.evaluate import Summary, finite_mean, run_with_metrics, summarise
 from microg_env.analysis.metrics import RunMetrics, contacts
+from microg_env.params import CONTROL_PERIOD_S
 from microg_env.scenarios import Scenario, comparison_scenarios
 
 #: First test seed: training seeds its environments from 0 (``n_envs`` of them), validation from 500.
@@ -41,11 +42,6 @@ class Quantity:
     of: Callable[[RunMetrics], float]
 
 
-def _mean_abs_stages(values: list[float]) -> float:
-    finite = [abs(v) for v in values if math.isfinite(v)]
-    return float(np.mean(finite)) if finite else math.nan
-
-
 def _deformation_error(run: RunMetrics) -> float:
     return abs(run.max_deformation_m / run.reference_max_deformation_m - 1.0)
 
@@ -53,10 +49,10 @@ def _deformation_error(run: RunMetrics) -> float:
 #: What the comparison reports, all magnitudes (larger is worse), SI in the JSON.
 QUANTITIES: dict[str, Quantity] = {
     "compensation_error": Quantity(
-        "compensation error (abs.)", "%", 1.0, lambda run: _mean_abs_stages(run.compensation_error_pct)
+        "compensation error (abs.)", "%", 1.0, lambda run: finite_mean(map(abs, run.compensation_error_pct))
     ),
     "residual_gravity_g": Quantity(
-        "residual gravity error", "g", 1.0, lambda run: _mean_abs_stages(run.residual_gravity_g)
+        "residual gravity error", "g", 1.0, lambda run: finite_mean(map(abs, run.residual_gravity_g))
     ),
     "free_fall_excursion_m": Quantity("x in free fall", "um", 1e6, lambda run: run.flexible_unit_excursion_free_fall_m),
     "collision_excursion_m": Quantity(
@@ -197,7 +193,7 @@ def compare(
     seeds: int = 5,
     first_seed: int = TEST_SEED,
     randomize: bool = False,
-    control_period_s: float = 1e-3,
+    control_period_s: float = CONTROL_PERIOD_S,
     duration_s: float | None = None,
     workers: int = 1,
     progress: Callable[[int], None] | None = None,

@@ -56,12 +56,8 @@ def render_markdown(c: Comparison) -> str:
         "",
     ]
     for name, scenario in c.scenarios.items():
-        loads = ", ".join(
-            f"{load.mass_kg:g} kg" + ("" if load.height_m is None else f" at {load.height_m * 1e3:g} mm")
-            for load in scenario.loads
-        )
         duration = scenario.duration_s if c.duration_s is None else min(scenario.duration_s, c.duration_s)
-        lines.append(f"- `{name}`: {loads}; from {scenario.descent_height_m * 1e3:g} mm; {duration:g} s")
+        lines.append(f"- `{name}`: {scenario.loads_text}; from {scenario.descent_height_m * 1e3:g} mm; {duration:g} s")
     lines += [
         "",
         "Mean ± std (worst) over every scenario and seed; failures are episodes ended at a stroke limit.",

@@ -119,6 +119,12 @@ def summarise(runs: Iterable[RunMetrics], quantity: Callable[[RunMetrics], float
     return Summary(float(finite.mean()), float(finite.std()), float(worst(finite)))
 
 
+def finite_mean(values: Iterable[float]) -> float:
+    """The mean of the finite values (a stage or window a run did not reach is NaN); NaN if none."""
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
 def control_cost(runs: Iterable[RunMetrics]) -> float:
     """The cost controllers are tuned and selected by: J = mean |compensation error| [%] over the
     load stages of ``runs`` long enough to measure (a second of free fall) + the worst

@@ -6,11 +6,11 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
+from microg_env.files import check_writable
 from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S
 from microg_env.scenarios import MAX_DURATION_S, MIN_DURATION_S
 
@@ -121,10 +121,7 @@ def check_writable_folder(path: str, option: str) -> None:
         existing = existing.parent
     if not existing.is_dir():
         raise ValueError(f"{option} {path!r}: {str(existing)!r} is not a folder")
-    try:  # the one reliable writability test (root passes os.access on read-only file systems)
-        tempfile.TemporaryDirectory(dir=existing).cleanup()
-    except OSError as error:
-        raise ValueError(f"{option} {path!r} is not writable ({error.strerror})") from None
+    check_writable(existing, option, path)
 
 
 class ProgressStream:

@@ -23,7 +23,7 @@ from microg_env.cli.common import (
     seed_number,
 )
 from microg_env.controllers.registry import CONTROLLER_NAMES
-from microg_env.params import CONTROL_PERIOD_RANGE_S, LOAD_CAPACITY_KG
+from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, LOAD_CAPACITY_KG
 from microg_env.scenarios import MIN_HEIGHT_M, MIN_LOAD_KG, LoadStep
 
 #: Figure formats ``--plot`` writes.
@@ -124,12 +124,8 @@ def _format_row(label: str, values: list[float], scale: float, spec: str) -> str
 
 def _print_run(env, args: argparse.Namespace, m) -> None:
     scenario, pad = env.active_scenario, env.params.pad
-    loads = ", ".join(
-        f"{load.mass_kg:g} kg" + ("" if load.height_m is None else f" at {load.height_m * 1e3:g} mm")
-        for load in scenario.loads
-    )
     print(
-        f"{scenario.name}: loads {loads}; descent from {scenario.descent_height_m * 1e3:g} mm; "
+        f"{scenario.name}: loads {scenario.loads_text}; descent from {scenario.descent_height_m * 1e3:g} mm; "
         f"{args.pad} pad (K = {pad.stiffness_n_per_m:.1f} N/m, D = {pad.damping_n_s_per_m:.1f} N s/m); "
         f"controller {args.controller}; seed {args.seed}; {scenario.duration_s:g} s at "
         f"{args.control_period:g} us (physics step {args.physics_step:g} us); "
@@ -344,7 +340,7 @@ def add_commands(commands) -> None:
     run.add_argument(
         "--control-period",
         type=number(low, high, "us", low_open=False),
-        default=1000.0,
+        default=CONTROL_PERIOD_S * 1e6,
         metavar="US",
         help="control period (paper: 1000/500/200/100)",
     )

@@ -14,9 +14,11 @@ from typing import Any, Protocol
 import numpy as np
 
 from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES
+from microg_env.params import ScrewStageParams
 
-#: Drive speed that the action +-1 stands for, m/s (Section 4.1).
-MAX_SPEED_M_S = 1.25
+#: Drive speed that the action +-1 stands for, m/s: the paper's rig's maximum (Section 4.1), a
+#: fixed unit of the action whatever rig is simulated (a slower drive saturates on its own).
+MAX_SPEED_M_S = ScrewStageParams().max_speed_m_per_s
 
 
 class Controller(Protocol):

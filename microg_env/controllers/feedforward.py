@@ -37,7 +37,7 @@ import numpy as np
 from microg_env.controllers.base import MAX_SPEED_M_S, Readings
 from microg_env.controllers.pid import PID, controller_config, load_gains
 from microg_env.params import RigParams
-from microg_env.sim.model import flexible_unit, speed_loop_gains
+from microg_env.sim.model import drive_inertia_kg_m2, flexible_unit, speed_loop_gains
 
 #: Pad-force readings below this are taken as no contact (the sensor's noise is 0.1 N RMS), N.
 CONTACT_THRESHOLD_N = 0.5
@@ -79,7 +79,7 @@ class Feedforward:
         self._viscous = screw.viscous_n_s_per_m
         self._gear = screw.gear_rad_per_m
         self._kp, self._kd = speed_loop_gains(params)
-        self._inertia = servo.rotor_inertia_kg_m2 + screw.screw_inertia_kg_m2 + screw.support_mass_kg / self._gear**2
+        self._inertia = drive_inertia_kg_m2(params)
         self._servo = servo
         self.reset()
 

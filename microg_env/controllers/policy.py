@@ -27,6 +27,7 @@ import numpy as np
 
 from microg_env.controllers.base import MAX_SPEED_M_S, SetpointController
 from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES
+from microg_env.params import CONTROL_PERIOD_S
 
 RESIDUAL_LIMIT_M = 1e-6
 """The x setpoint a residual action of +-1 stands for, m: a few times the feedforward baseline's
@@ -209,7 +210,7 @@ def load_policy(folder: str | Path, control_period_s: float) -> PolicyController
     was trained at (its decision period and base controller's tuning are tied to it)."""
     card, policy = check_policy_folder(folder)
     env = card["env_kwargs"]
-    trained_period = float(env.get("control_period_s", 1e-3))
+    trained_period = float(env.get("control_period_s", CONTROL_PERIOD_S))
     if abs(control_period_s - trained_period) > 1e-9:
         raise ValueError(
             f"control_period_s {control_period_s!r}: policy {Path(folder).name!r} was trained at "
@@ -224,7 +225,7 @@ def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyContro
     from microg_env.controllers.registry import make_controller
 
     residual = env_kwargs.get("action_mode", "speed") == "residual"
-    period = float(env_kwargs.get("control_period_s", 1e-3))
+    period = float(env_kwargs.get("control_period_s", CONTROL_PERIOD_S))
     return PolicyController(
         policy,
         decision_period=int(env_kwargs.get("decision_period", 1)),

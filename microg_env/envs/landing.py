@@ -22,7 +22,7 @@ from microg_env.controllers.policy import RESIDUAL_LIMIT_M
 from microg_env.controllers.registry import BASELINES, make_controller
 from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES, SCALES
 from microg_env.imperfections import DomainRandomization, Imperfections, apply_imperfections
-from microg_env.params import CONTROL_PERIOD_RANGE_S, MAX_CONTROL_STEPS, PHYSICS_STEP_S, RigParams
+from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, MAX_CONTROL_STEPS, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import LoadStep, Scenario, ScenarioSampler
 from microg_env.sim.limits import check_pad
 from microg_env.sim.model import Rig, build_rig, check_physics_step, flexible_unit, validate_loads
@@ -162,7 +162,7 @@ class MicroGravityLandingEnv(gym.Env):
         condition: int = 1,
         scenario: Scenario | None = None,
         scenario_sampler: ScenarioSampler | str | Mapping | None = None,
-        control_period_s: float = 1e-3,
+        control_period_s: float = CONTROL_PERIOD_S,
         physics_step_s: float = PHYSICS_STEP_S,
         decision_period: int = 1,
         action_mode: str = "speed",

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from microg_env.params import ScrewStageParams
+
 #: Observation entries and the scale each is divided by (SI units / scale = order one).
 OBSERVATION_SCALES: dict[str, float] = {
     "x": 1e-4,  # grating ruler, m (100 um)
@@ -19,7 +21,8 @@ OBSERVATION_SCALES: dict[str, float] = {
     "height": 0.1,  # foot height from encoder + ruler, m
     "placed_load": 1.0,  # test weights placed so far, kg
     "previous_action": 1.0,  # the agent's previous action
-    "base_command": 1.25,  # the base controller's speed command (residual mode; else 0), m/s
+    # the base controller's speed command (residual mode; else 0), m/s: the paper's maximum speed
+    "base_command": ScrewStageParams().max_speed_m_per_s,
 }
 OBSERVATION_INDEX = {name: i for i, name in enumerate(OBSERVATION_SCALES)}
 SCALES = np.array(list(OBSERVATION_SCALES.values()))

@@ -340,7 +340,7 @@ class _Run:
 
     def evaluate(self, model) -> None:
         """The deterministic policy on the validation schedules, by the project's metrics."""
-        from microg_env.analysis.evaluate import control_cost, evaluate
+        from microg_env.analysis.evaluate import control_cost, evaluate, finite_mean
 
         env_kwargs = self.params.env_kwargs
         normalization = model.get_vec_normalize_env()
@@ -353,9 +353,9 @@ class _Run:
             "timesteps": model.num_timesteps,
             "wall_s": round(self.wall_s(), 1),
             "cost": cost,
-            "compensation_error_pct": _mean_abs([e for run in runs for e in run.compensation_error_pct]),
-            "free_fall_excursion_um": _mean([run.flexible_unit_excursion_free_fall_m * 1e6 for run in runs]),
-            "collision_excursion_um": _mean([run.flexible_unit_excursion_collision_m * 1e6 for run in runs]),
+            "compensation_error_pct": finite_mean(abs(e) for run in runs for e in run.compensation_error_pct),
+            "free_fall_excursion_um": finite_mean(run.flexible_unit_excursion_free_fall_m * 1e6 for run in runs),
+            "collision_excursion_um": finite_mean(run.flexible_unit_excursion_collision_m * 1e6 for run in runs),
             "failure_rate": failure_rate,
         }
         for key, value in row.items():
@@ -465,15 +465,6 @@ def _speed_env(env_id: str, env_kwargs: dict[str, Any]):
 
     kwargs = {k: v for k, v in env_kwargs.items() if k not in ("action_mode", "base_controller", "decision_period")}
     return gym.make(env_id, **(kwargs | {"scenario_sampler": VALIDATION_SAMPLER}))
-
-
-def _mean(values: list[float]) -> float:
-    finite = [v for v in values if math.isfinite(v)]
-    return float(np.mean(finite)) if finite else math.nan
-
-
-def _mean_abs(values: list[float]) -> float:
-    return _mean([abs(v) for v in values])
 
 
 def _show(value: float | None, spec: str) -> str:

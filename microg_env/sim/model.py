@@ -127,18 +127,21 @@ def servo_max_speed_rad_s(params: RigParams) -> float:
     return params.screw.max_speed_m_per_s * params.screw.gear_rad_per_m
 
 
-def speed_loop_gains(params: RigParams) -> tuple[float, float]:
-    """The drive's PI speed loop as dcmotor gains (kp, kd), N m/rad and N m s/rad.
-
-    kd = Kv J and kp = Kv J / Ti, with J the inertia the loop drives at the motor: rotor, screw
-    and the floating support reflected through the screw (the lander hangs on the 1.2 Hz QZS
-    spring, far below the loop's bandwidth, so the loop does not feel it).
-    """
-    screw, servo = params.screw, params.servo
-    loop_inertia = (
-        servo.rotor_inertia_kg_m2 + screw.screw_inertia_kg_m2 + screw.support_mass_kg / screw.gear_rad_per_m**2
+def drive_inertia_kg_m2(params: RigParams) -> float:
+    """The inertia the drive moves, at the motor: rotor, screw and the floating support reflected
+    through the screw (the lander hangs on the 1.2 Hz QZS spring, far below the speed loop's
+    bandwidth, so the loop does not feel it), kg m^2."""
+    screw = params.screw
+    return (
+        params.servo.rotor_inertia_kg_m2 + screw.screw_inertia_kg_m2 + screw.support_mass_kg / screw.gear_rad_per_m**2
     )
-    kd = 2.0 * math.pi * servo.speed_loop_gain_hz * loop_inertia
+
+
+def speed_loop_gains(params: RigParams) -> tuple[float, float]:
+    """The drive's PI speed loop as dcmotor gains (kp, kd), N m/rad and N m s/rad: kd = Kv J and
+    kp = Kv J / Ti, with J :func:`drive_inertia_kg_m2`."""
+    servo = params.servo
+    kd = 2.0 * math.pi * servo.speed_loop_gain_hz * drive_inertia_kg_m2(params)
     return kd / servo.speed_integral_time_s, kd
 
 
