@@ -365,11 +365,11 @@ class MicroGravityLandingEnv(gym.Env):
             else:
                 command = float(self._base(self._observation, self._info_now)[0]) * MAX_SPEED_M_S
                 episode["base_command"] = command
-            reward, reason = self._control_period(command)
+            reason = self._control_period(command)
             episode["previous_action"] = value
             self._observation = self._sense()
             self._info_now = self._info(reason)
-            total, periods = total + reward, periods + 1
+            total, periods = total + self._info_now["reward_x"], periods + 1
             truncated = reason is None and episode["steps"] >= episode["max_steps"]
             if self.render_mode == "human" and episode["steps"] % self._human_every == 0:
                 self.render()
@@ -407,9 +407,9 @@ class MicroGravityLandingEnv(gym.Env):
 
     # -- internals ---------------------------------------------------------------------------
 
-    def _control_period(self, command_m_s: float) -> tuple[float, str | None]:
+    def _control_period(self, command_m_s: float) -> str | None:
         """Advance one control period with the drive taking ``command_m_s`` (after the delay, if on);
-        returns the period's reward and a termination reason, if any."""
+        returns a termination reason, if any (the period's reward is its info's ``reward_x``)."""
         episode, data, rig = self._episode, self.data, self.rig
         command = min(max(command_m_s, -MAX_SPEED_M_S), MAX_SPEED_M_S)
         if self.imperfections.control_delay:
@@ -420,8 +420,7 @@ class MicroGravityLandingEnv(gym.Env):
         episode["steps"] += 1
         if episode["next_load"] < len(self.active_scenario.loads):
             self._place_due_loads(rig.foot_height(data))
-        reward = x_reward(float(data.qpos[rig.qzs_qpos]), self.reward_scale_m, self._x_limit)
-        return reward, self._termination_reason()
+        return self._termination_reason()
 
     def _place_due_loads(self, height: float) -> None:
         episode, scenario = self._episode, self.active_scenario
