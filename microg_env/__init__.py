@@ -1,6 +1,7 @@
 """microg: MuJoCo model of the QZS microgravity landing rig of Jia et al., Actuators 2024, 13(9), 361.
 
-Importing the package registers the Gymnasium environment ``MicroGravityLanding-v1``.
+Importing the package registers the Gymnasium environment ``MicroGravityLanding-v1``, with its
+vector environment on ``mujoco.batch`` (``gym.make_vec(..., vectorization_mode="vector_entry_point")``).
 """
 
 from gymnasium.envs.registration import register, registry
@@ -18,7 +19,11 @@ __version__ = "0.3.0"
 if "MicroGravityLanding-v1" not in registry:
     # No max_episode_steps: the environment truncates itself at its scenario's duration, whatever
     # the control period (a step count fixed here would cut a 100 us episode off at 3 s).
-    register(id="MicroGravityLanding-v1", entry_point="microg_env.envs.landing:MicroGravityLandingEnv")
+    register(
+        id="MicroGravityLanding-v1",
+        entry_point="microg_env.envs.landing:MicroGravityLandingEnv",
+        vector_entry_point="microg_env.envs.vector:MicroGravityLandingVectorEnv",
+    )
 
 __all__ = [
     "CONDITIONS",

@@ -139,7 +139,7 @@ def test_feedforward_follows_a_setpoint_and_resets():
     controller = make_controller("feedforward", env.control_period_s)
     observation, info = env.reset(seed=0)
     controller.reset()
-    controller.setpoint_m = 1e-6
+    controller.setpoint_m[0] = 1e-6  # rig 0's setpoint (a controller holds one per rig)
     xs = []
     for _ in range(1500):
         observation, _, _, _, info = env.step(controller(observation, info))
@@ -147,5 +147,5 @@ def test_feedforward_follows_a_setpoint_and_resets():
     assert np.mean(xs[500:]) == pytest.approx(1e-6, abs=0.1e-6)
     first = controller(observation, info)
     controller.reset()
-    assert controller.setpoint_m == 0.0  # a new episode holds x at 0 again
+    assert controller.setpoint_m[0] == 0.0  # a new episode holds x at 0 again
     assert controller(observation, info) != first  # and its estimator restarts from this observation

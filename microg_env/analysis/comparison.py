@@ -19,10 +19,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from microg_env import validate
-from microg_env.analysis.evaluate import Summary, finite_mean, run_with_metrics, summarise
-from microg_env.analysis.metrics import RunMetrics, contacts
-from microg_env.params import CONTROL_PERIOD_S
+from microg_env.analysis.batch import Episode, run_batch
+from microg_env.analysis.evaluate import Summary, finite_mean, summarise
+from microg_env.analysis.metrics import RunMetrics, compute_metrics, contacts
+from microg_env.analysis.trajectory import Trajectory
+from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import Scenario, comparison_scenarios
+from microg_env.sim.reference import simulate_reference
 
 #: First test seed: training seeds its environments from 0 (``n_envs`` of them), validation from 500.
 TEST_SEED = 1000
@@ -83,36 +86,22 @@ class CaseResult:
         return self.metrics.termination_reason is not None
 
 
-@dataclass(frozen=True)
-class _Job:
-    case: Case
-    scenario: Scenario
-    randomize: bool
-    control_period_s: float
-    duration_s: float | None
-    keep_x: bool
+def _reference(job: tuple[Scenario, RigParams, float, float, float]) -> Trajectory:
+    """The ideal-microgravity landing of one plant and schedule (a process pool's task)."""
+    scenario, params, control_period_s, physics_step_s, duration_s = job
+    return simulate_reference(scenario, params, control_period_s, physics_step_s, duration_s)
 
 
-def run_case(job: _Job) -> CaseResult:
-    """One case (a process pool's task; it builds its own environment and controller)."""
-    from microg_env.controllers.registry import make_controller
-    from microg_env.envs.landing import MicroGravityLandingEnv
-
-    env = MicroGravityLandingEnv(
-        scenario=job.scenario, control_period_s=job.control_period_s, domain_randomization=job.randomize or None
-    )
-    controller = make_controller(job.case.controller, job.control_period_s)
-    duration = None if job.duration_s is None else min(job.duration_s, job.scenario.duration_s)
-    trajectory, _, metrics = run_with_metrics(env, controller, seed=job.case.seed, duration_s=duration)
-    env.close()
+def _result(case: Case, trajectory: Trajectory, reference: Trajectory, keep_x: bool) -> CaseResult:
+    metrics = compute_metrics(trajectory, reference)
     window = None
     found = contacts(trajectory)
-    if job.keep_x and found:
+    if keep_x and found:
         t = trajectory.time_s - trajectory.time_s[found[0].start]
         keep = (t >= X_WINDOW_S[0]) & (t <= X_WINDOW_S[1])
         window = (t[keep], trajectory.x_m[keep])
     values = {name: float(quantity.of(metrics)) for name, quantity in QUANTITIES.items()}
-    return CaseResult(job.case, metrics, values, window)
+    return CaseResult(case, metrics, values, window)
 
 
 @dataclass(frozen=True)
@@ -213,12 +202,7 @@ def compare(
     validate.integer("seeds", seeds, 1, MAX_SEEDS)
     workers = validate.integer("workers", workers, 1, MAX_WORKERS)
     seed_list = tuple(range(first_seed, first_seed + seeds))
-    jobs = [
-        _Job(Case(c, s, seed), known[s], randomize, control_period_s, duration_s, keep_x=seed == seed_list[0])
-        for s in names
-        for seed in seed_list
-        for c in dict.fromkeys(controllers)
-    ]
+    cases = [Case(c, s, seed) for s in names for seed in seed_list for c in dict.fromkeys(controllers)]
     comparison = Comparison(
         tuple(dict.fromkeys(controllers)),
         {s: known[s] for s in names},
@@ -227,14 +211,20 @@ def compare(
         control_period_s,
         duration_s,
     )
+    episodes = [Episode(case.controller, known[case.scenario], case.seed) for case in cases]
+    runs = run_batch(episodes, control_period_s, randomize, duration_s, workers, progress)
+    # One reference per plant, schedule and length: every controller meets the same plant on a seed.
+    jobs, keys = {}, []
+    for trajectory, params in runs:
+        length = float(trajectory.time_s[-1])
+        keys.append((repr(trajectory.scenario), repr(params), length))
+        jobs.setdefault(keys[-1], (trajectory.scenario, params, control_period_s, PHYSICS_STEP_S, length))
     with contextlib.ExitStack() as stack:
-        if workers == 1:
-            results = map(run_case, jobs)
+        if workers == 1 or len(jobs) == 1:
+            references = dict(zip(jobs, map(_reference, jobs.values()), strict=True))
         else:
             pool = stack.enter_context(ProcessPoolExecutor(max_workers=min(workers, len(jobs))))
-            results = pool.map(run_case, jobs)
-        for result in results:
-            comparison.results.append(result)
-            if progress is not None:
-                progress(1)
+            references = dict(zip(jobs, pool.map(_reference, jobs.values()), strict=True))
+    for case, (trajectory, _), key in zip(cases, runs, keys, strict=True):
+        comparison.results.append(_result(case, trajectory, references[key], keep_x=case.seed == seed_list[0]))
     return comparison

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shlex
 import sys
 from pathlib import Path
@@ -208,7 +209,11 @@ def add_commands(commands) -> None:
     compare.add_argument("--randomize", action="store_true", help="randomised plants, drawn from each seed")
     add_duration_option(compare, "cap on each episode's simulated time (default: the scenario's)")
     compare.add_argument(
-        "--workers", type=count(MAX_WORKERS), default=1, metavar="N", help="parallel processes (default 1)"
+        "--workers",
+        type=count(MAX_WORKERS),
+        default=os.cpu_count() or 1,
+        metavar="N",
+        help="threads stepping the batch of rigs, processes for the ideal references (default: every core)",
     )
     compare.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     compare.add_argument(

@@ -30,11 +30,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import ClassVar
 
 import numpy as np
 
-from microg_env.controllers.base import MAX_SPEED_M_S, Readings
+from microg_env.controllers.base import MAX_SPEED_M_S, Readings, VectorController
 from microg_env.controllers.pid import PID, controller_config, load_gains
 from microg_env.params import RigParams
 from microg_env.sim.model import drive_inertia_kg_m2, flexible_unit, speed_loop_gains
@@ -56,8 +56,15 @@ class FeedforwardSettings:
         return cls(float(entry["velocity_observer_gain"]), float(entry["prediction_horizon_s"]))
 
 
-class Feedforward:
+class Feedforward(VectorController):
     """PID on x plus the nominal model's feed-forward; see the module docstring."""
+
+    STATE: ClassVar[dict[str, float]] = {
+        "_velocity": math.nan,  # the lander's, estimated (NaN: not yet)
+        "_start": math.nan,  # the support's height at the start (the balancer's trim)
+        "_reference_offset": 0.0,  # accumulated speed-reference offset x period, motor rad
+        "_bristle": 0.0,  # the LuGre observer's state, motor rad
+    }
 
     def __init__(
         self,
@@ -65,6 +72,7 @@ class Feedforward:
         params: RigParams | None = None,
         settings: FeedforwardSettings | None = None,
     ) -> None:
+        super().__init__()
         params = RigParams() if params is None else params
         self.settings = FeedforwardSettings.load() if settings is None else settings
         self.control_period_s = control_period_s
@@ -81,58 +89,62 @@ class Feedforward:
         self._kp, self._kd = speed_loop_gains(params)
         self._inertia = drive_inertia_kg_m2(params)
         self._servo = servo
-        self.reset()
 
     @property
-    def setpoint_m(self) -> float:
+    def setpoint_m(self) -> np.ndarray:
         return self.pid.setpoint_m
 
-    @setpoint_m.setter
-    def setpoint_m(self, value: float) -> None:
-        self.pid.setpoint_m = value
+    def reset(self, ids: np.ndarray | None = None) -> None:
+        super().reset(ids)
+        self.pid.reset(ids)
 
-    def reset(self) -> None:
-        self.pid.reset()
-        self._velocity: float | None = None  # the lander's, estimated
-        self._start: float | None = None  # the support's height at the start (the balancer's trim)
-        self._reference_offset = 0.0  # accumulated speed-reference offset x period, motor rad
-        self._bristle = 0.0  # the LuGre observer's state, motor rad
+    def grow(self, count: int) -> None:
+        super().grow(count)
+        self.pid.grow(count)
 
-    def __call__(self, observation: np.ndarray, info: dict[str, Any]) -> np.ndarray:
-        r = Readings.of(observation)
+    def act(self, rows: np.ndarray, ids: np.ndarray | slice) -> np.ndarray:
+        r = Readings.of(rows)
         period = self.control_period_s
-        if self._start is None:
-            self._start = r.support_position_m
-            self._velocity = r.support_velocity_m_s + r.x_rate_m_s
-        force = r.pad_force_n if r.pad_force_n > CONTACT_THRESHOLD_N else 0.0
+        first = np.isnan(self._start[ids])
+        if first.any():
+            starting = self.rigs(ids)[first]
+            self._start[starting] = r.support_position_m[first]
+            self._velocity[starting] = (r.support_velocity_m_s + r.x_rate_m_s)[first]
+        force = np.where(r.pad_force_n > CONTACT_THRESHOLD_N, r.pad_force_n, 0.0)
         accel = (force - r.placed_load_kg * self._gravity - self._x_stiffness * r.x_m) / (self._mass + r.placed_load_kg)
-        self._velocity += accel * period
-        self._velocity += self.settings.velocity_observer_gain * (
-            r.support_velocity_m_s + r.x_rate_m_s - self._velocity
-        )
-        speed = self.pid.command(r, bias_m_s=self._velocity + accel * period)  # one period ahead
-        torque = self._drive_torque(r, speed, accel)
-        offset = (torque - self._kp * self._reference_offset) / (self._kd + self._kp * period)
-        self._reference_offset += offset * period
-        return np.array([(speed + offset / self._gear) / MAX_SPEED_M_S], dtype=np.float32)
+        velocity = self._velocity[ids] + accel * period
+        velocity += self.settings.velocity_observer_gain * (r.support_velocity_m_s + r.x_rate_m_s - velocity)
+        self._velocity[ids] = velocity
+        speed = self.pid.command(r, ids, bias_m_s=velocity + accel * period)  # one period ahead
+        torque = self._drive_torque(r, ids, speed, accel)
+        reference_offset = self._reference_offset[ids]
+        offset = (torque - self._kp * reference_offset) / (self._kd + self._kp * period)
+        self._reference_offset[ids] = reference_offset + offset * period
+        return (speed + offset / self._gear) / MAX_SPEED_M_S
 
-    def _drive_torque(self, r: Readings, speed_m_s: float, accel_m_s2: float) -> float:
-        """Motor torque, N m, beyond the speed loop's own, that the support will need."""
-        servo, gear = self._servo, self._gear
-        load = self._support_stiffness * (r.support_position_m - self._start) + self._viscous * speed_m_s
+    def _drive_torque(
+        self, r: Readings, ids: np.ndarray | slice, speed_m_s: np.ndarray, accel_m_s2: np.ndarray
+    ) -> np.ndarray:
+        """Motor torque, N m, beyond the speed loop's own, that each rig's support will need."""
+        servo, gear, period = self._servo, self._gear, self.control_period_s
+        load = self._support_stiffness * (r.support_position_m - self._start[ids]) + self._viscous * speed_m_s
         torque = self._inertia * gear * accel_m_s2 + load / gear
         angle = gear * (r.support_position_m + r.support_velocity_m_s * self.settings.prediction_horizon_s)
-        torque -= servo.cogging_torque_n_m * math.sin(servo.cogging_cycles_per_rev * angle)
+        torque -= servo.cogging_torque_n_m * np.sin(servo.cogging_cycles_per_rev * angle)
         if servo.bristle_stiffness_n_m_per_rad > 0:  # LuGre friction of the commanded motion
             omega = gear * speed_m_s
-            stribeck = servo.coulomb_torque_n_m + (servo.static_torque_n_m - servo.coulomb_torque_n_m) * math.exp(
+            stribeck = servo.coulomb_torque_n_m + (servo.static_torque_n_m - servo.coulomb_torque_n_m) * np.exp(
                 -((omega / servo.stribeck_speed_rad_s) ** 2)
             )
-            rate = servo.bristle_stiffness_n_m_per_rad * abs(omega) / max(stribeck, 1e-12)
-            decay = math.exp(-rate * self.control_period_s)
-            step = (1.0 - decay) / rate if rate > 1e-12 else self.control_period_s
-            bristle = decay * self._bristle + step * omega  # exact over the period at constant speed
-            bristle_rate = (bristle - self._bristle) / self.control_period_s
-            self._bristle = bristle
-            torque += servo.bristle_stiffness_n_m_per_rad * bristle + servo.bristle_damping_n_m_s_per_rad * bristle_rate
+            rate = servo.bristle_stiffness_n_m_per_rad * np.abs(omega) / np.maximum(stribeck, 1e-12)
+            decay = np.exp(-rate * period)
+            moving = rate > 1e-12
+            # exact over the period at constant speed
+            step = np.where(moving, (1.0 - decay) / np.where(moving, rate, 1.0), period)
+            previous = self._bristle[ids].copy()  # a view when ids is a slice
+            bristle = decay * previous + step * omega
+            self._bristle[ids] = bristle
+            torque += servo.bristle_stiffness_n_m_per_rad * bristle + servo.bristle_damping_n_m_s_per_rad * (
+                (bristle - previous) / period
+            )
         return torque

@@ -20,11 +20,11 @@ import math
 import sys
 from dataclasses import dataclass, fields
 from importlib import resources
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
-from microg_env.controllers.base import MAX_SPEED_M_S, Readings
+from microg_env.controllers.base import MAX_SPEED_M_S, Readings, VectorController
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -64,36 +64,36 @@ def load_gains(name: str) -> PIDGains:
     return PIDGains(**{f.name: float(entry[f.name]) for f in fields(PIDGains)})
 
 
-class PID:
+class PID(VectorController):
     """PID on x commanding the support speed; see the module docstring for the two D terms."""
 
+    STATE: ClassVar[dict[str, float]] = {"_integral": 0.0, "_derivative": 0.0, "setpoint_m": 0.0}
+
     def __init__(self, gains: PIDGains, control_period_s: float, derivative_on_measurement: bool = False) -> None:
+        super().__init__()
         self.gains = gains
         self.control_period_s = control_period_s
         self.derivative_on_measurement = derivative_on_measurement
         self._alpha = control_period_s / (gains.derivative_filter_s + control_period_s)
-        self.reset()
 
-    def reset(self) -> None:
-        self._integral = 0.0
-        self._derivative = 0.0
-        self.setpoint_m = 0.0
+    def act(self, rows: np.ndarray, ids: np.ndarray | slice) -> np.ndarray:
+        return self.command(Readings.of(rows), ids) / MAX_SPEED_M_S
 
-    def __call__(self, observation: np.ndarray, info: dict[str, Any]) -> np.ndarray:
-        readings = Readings.of(observation)
-        return np.array([self.command(readings) / MAX_SPEED_M_S], dtype=np.float32)
-
-    def command(self, readings: Readings, bias_m_s: float = 0.0) -> float:
-        """The speed command, m/s, for these readings; ``bias_m_s`` (a feed-forward) is added inside
-        the saturation, so the anti-windup sees the whole command."""
+    def command(self, readings: Readings, ids: np.ndarray | slice, bias_m_s: np.ndarray | float = 0.0) -> np.ndarray:
+        """The speed commands, m/s, of rigs ``ids`` for these readings; ``bias_m_s`` (a feed-forward)
+        is added inside the saturation, so the anti-windup sees the whole command."""
         g = self.gains
-        error = readings.x_m - self.setpoint_m
+        error = readings.x_m - self.setpoint_m[ids]
         rate = -readings.support_velocity_m_s if self.derivative_on_measurement else readings.x_rate_m_s
-        self._derivative += self._alpha * (rate - self._derivative)
-        integral = self._integral + g.ki_per_s2 * error * self.control_period_s
-        integral = min(max(integral, -g.integral_limit_m_s), g.integral_limit_m_s)
-        command = bias_m_s + g.kp_per_s * error + integral + g.kd * self._derivative
+        derivative = self._derivative[ids]
+        derivative += self._alpha * (rate - derivative)
+        self._derivative[ids] = derivative
+        previous = self._integral[ids]
+        integral = np.clip(
+            previous + g.ki_per_s2 * error * self.control_period_s, -g.integral_limit_m_s, g.integral_limit_m_s
+        )
+        command = bias_m_s + g.kp_per_s * error + integral + g.kd * derivative
         # Conditional integration: do not wind the integral further into a saturated command.
-        if abs(command) <= MAX_SPEED_M_S or (command > 0) != (error > 0):
-            self._integral = integral
-        return min(max(command, -MAX_SPEED_M_S), MAX_SPEED_M_S)
+        keep = (np.abs(command) <= MAX_SPEED_M_S) | ((command > 0) != (error > 0))
+        self._integral[ids] = np.where(keep, integral, previous)
+        return np.minimum(np.maximum(command, -MAX_SPEED_M_S), MAX_SPEED_M_S)

@@ -21,11 +21,11 @@ import zipfile
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
-from microg_env.controllers.base import MAX_SPEED_M_S, SetpointController
+from microg_env.controllers.base import MAX_SPEED_M_S, SetpointController, VectorController
 from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES
 from microg_env.params import CONTROL_PERIOD_S
 
@@ -75,7 +75,7 @@ class MLPPolicy:
         z = self.normalize(np.asarray(observation, dtype=np.float64))
         act = ACTIVATIONS[self.activation]
         for i, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
-            z = weight @ z + bias
+            z = z @ weight.T + bias
             if i < len(self.weights) - 1:
                 z = act(z)
         action = np.tanh(z) if self.squash else np.clip(z, -1.0, 1.0)
@@ -113,15 +113,18 @@ class MLPPolicy:
             )
 
 
-class PolicyController:
+class PolicyController(VectorController):
     """A learned policy (anything with ``predict(obs, deterministic=True)``: a stable-baselines3
     model, an :class:`MLPPolicy`) as a controller of the speed-action environment.
 
     The policy acts every ``decision_period`` control periods. With a ``base`` controller its
     action is a setpoint for x, ``action * residual_limit_m``, that the base holds while commanding
     the drive every period (the residual mode of ``MicroGravityLanding-v1``); without one the action
-    is the speed command, held. An all-zero residual is exactly the base controller.
+    is the speed command, held. An all-zero residual is exactly the base controller. Many rigs'
+    observations go through the policy in one batch.
     """
+
+    STATE: ClassVar[dict[str, float]] = {"_periods": 0.0, "_action": 0.0, "_base_command_m_s": 0.0}
 
     def __init__(
         self,
@@ -133,35 +136,41 @@ class PolicyController:
     ) -> None:
         from microg_env import validate
 
+        super().__init__()
         self.policy = policy
         self.deterministic = deterministic
         self.decision_period = validate.integer("decision_period", decision_period, 1, 1000)
         self.base = base
         self.residual_limit_m = validate.positive("residual_limit_m", residual_limit_m, "m", 1e-3)
-        self.reset()
 
-    def reset(self) -> None:
-        self._periods = 0
-        self._action = np.zeros(1, dtype=np.float32)
-        self._base_command_m_s = 0.0
+    def reset(self, ids: np.ndarray | None = None) -> None:
+        super().reset(ids)
         if self.base is not None:
-            self.base.reset()
-            self.base.setpoint_m = 0.0
+            self.base.reset(ids)
 
-    def __call__(self, observation: np.ndarray, info: dict[str, Any]) -> np.ndarray:
-        if self._periods % self.decision_period == 0:
-            seen = np.array(observation, dtype=np.float32)  # what the training environment showed
-            seen[OBSERVATION_INDEX["previous_action"]] = self._action[0]
-            seen[OBSERVATION_INDEX["base_command"]] = self._base_command_m_s / OBSERVATION_SCALES["base_command"]
+    def grow(self, count: int) -> None:
+        super().grow(count)
+        if self.base is not None:
+            self.base.grow(count)
+
+    def act(self, rows: np.ndarray, ids: np.ndarray | slice) -> np.ndarray:
+        due = self._periods[ids] % self.decision_period == 0
+        if due.any():
+            acting = self.rigs(ids)[due]
+            seen = np.array(rows[due], dtype=np.float32)  # what the training environment showed
+            seen[:, OBSERVATION_INDEX["previous_action"]] = self._action[acting]
+            seen[:, OBSERVATION_INDEX["base_command"]] = (
+                self._base_command_m_s[acting] / OBSERVATION_SCALES["base_command"]
+            )
             action, _ = self.policy.predict(seen, deterministic=self.deterministic)
-            self._action = np.clip(np.asarray(action, dtype=np.float32).reshape(1), -1.0, 1.0)
+            self._action[acting] = np.clip(np.asarray(action, dtype=np.float32).reshape(-1), -1.0, 1.0)
             if self.base is not None:
-                self.base.setpoint_m = float(self._action[0]) * self.residual_limit_m
-        self._periods += 1
+                self.base.setpoint_m[acting] = self._action[acting] * self.residual_limit_m
+        self._periods[ids] += 1
         if self.base is None:
-            return self._action.copy()
-        command = self.base(observation, info)
-        self._base_command_m_s = float(command[0]) * MAX_SPEED_M_S
+            return self._action[ids]
+        command = self.base(rows, ids=None if isinstance(ids, slice) else ids)[:, 0]
+        self._base_command_m_s[ids] = command.astype(np.float64) * MAX_SPEED_M_S
         return command
 
 

@@ -223,17 +223,16 @@ class _Run:
     # -- building --------------------------------------------------------------------------
 
     def _environments(self, seed: int, resuming: bool):
-        from stable_baselines3.common.env_util import make_vec_env
-        from stable_baselines3.common.vec_env import VecNormalize
+        from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
-        venv = make_vec_env(
-            self.params.env_id,
-            n_envs=self.params.n_envs,
-            seed=seed,
-            env_kwargs=self.params.env_kwargs,
-            monitor_dir=str(self.folder / "monitor"),
-            monitor_kwargs={"override_existing": not resuming, "info_keywords": ("termination_reason",)},
-        )
+        from microg_env.learning.vec_env import BatchedVecEnv
+
+        # Every rig on one mujoco.batch; one monitor file per session (a resumed one starts its own).
+        venv = BatchedVecEnv.make(self.params.n_envs, **self.params.env_kwargs)
+        venv.seed(seed)
+        (self.folder / "monitor").mkdir(exist_ok=True)
+        monitor = self.folder / "monitor" / f"from-{self.state['timesteps']}"
+        venv = VecMonitor(venv, filename=str(monitor), info_keywords=("termination_reason",))
         if self.params.normalize is None:
             return venv
         if resuming:

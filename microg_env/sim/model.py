@@ -23,6 +23,7 @@ from microg_env import validate
 from microg_env.files import data_folder
 from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RigParams, parameter_paths
 from microg_env.sim.limits import check_integrable
+from microg_env.sim.physics import FieldWrite
 
 #: Density of the steel test weights (for their size only; their mass is what matters).
 _STEEL_DENSITY_KG_M3 = 7850.0
@@ -39,6 +40,13 @@ IDEAL_DRIVE_DAMPING_N_S_PER_M = 1.0e12
 SLEW_PARAMETER = 7
 #: Slew rate standing for a zero speed reference (a zero rate would switch the slew limiter off).
 MIN_SLEW_RAD_S = 1e-12
+
+
+def slew_rate(speed_ref_rad_s: np.ndarray | float) -> np.ndarray | float:
+    """The dcmotor's setpoint slew rate that ramps its reference at ``speed_ref_rad_s``, rad/s."""
+    return np.maximum(np.abs(speed_ref_rad_s), MIN_SLEW_RAD_S)
+
+
 #: Parameters that :meth:`Rig.episode_fields` can change without recompiling the model.
 EPISODE_PARAMETERS = frozenset(
     {
@@ -145,18 +153,16 @@ def speed_loop_gains(params: RigParams) -> tuple[float, float]:
     return kd / servo.speed_integral_time_s, kd
 
 
-#: A model field write: (MjModel field name, index into it, value).
-FieldWrite = tuple[str, tuple | int, float | np.ndarray]
-
-
 class Rig:
     """A compiled rig model, the addresses a simulation needs, and its per-episode field values.
 
     A test weight that is not yet placed is held off the lander (by the experimenter's hand): it
     has no mass in the model, so it neither weighs on the lander nor adds to its inertia. Placing
-    it gives it its mass and retunes the pad contact to the new total mass. :meth:`configure`,
-    :meth:`place_loads` and :meth:`trim_balancer` write the episode's values into ``model``; a
-    batch of rigs writes the same values (:meth:`episode_fields`) per simulation instead.
+    it gives it its mass and retunes the pad contact to the new total mass. :meth:`episode_fields`
+    and :meth:`start_state` are the one source of an episode's model values and start; the rig core
+    (:mod:`microg_env.envs.core`) writes them for one rig or per simulation of a batch, and
+    :meth:`reset`, :meth:`place_loads` and :meth:`trim_balancer` write them into ``model`` for
+    scripts that step one ``MjData`` by hand.
     """
 
     def __init__(
@@ -184,12 +190,12 @@ class Rig:
         self._unit_load_inertia = model.body_inertia[self.load_bodies] / np.array(loads_kg)[:, None]
         self._pad_geom = model.geom("pad").id
         self._balancer = model.tendon("balancer").id
-        self._servo = model.actuator("servo").id
+        self.servo = model.actuator("servo").id
         self._guide = model.actuator("guide_friction").id
         #: Index of the drive's interpolated position reference (its slew state) in ``data.act``.
-        self.reference_act = int(model.actuator_actadr[self._servo])
+        self.reference_act = int(model.actuator_actadr[self.servo])
         #: Index of the drive current (the torque filter's state) in ``data.act``, or None.
-        self.current_act = int(model.actuator_actadr[self._servo] + model.actuator_actnum[self._servo] - 1)
+        self.current_act = int(model.actuator_actadr[self.servo] + model.actuator_actnum[self.servo] - 1)
         if ideal_drive or params.servo.torque_filter_s == 0:
             self.current_act = None
         self._motor_lugre = not ideal_drive and params.servo.bristle_stiffness_n_m_per_rad > 0
@@ -205,9 +211,15 @@ class Rig:
     ) -> list[FieldWrite]:
         """Model field values for ``params``, these test weights (``placed`` on the lander) and a
         balancer trimmed at support height ``trim_height_m``; ``params`` may differ from the
-        built rig's only in :data:`EPISODE_PARAMETERS`."""
-        self._check_episode_params(params)
-        loads = np.asarray(loads_kg, dtype=float)
+        built rig's only in :data:`EPISODE_PARAMETERS`. A schedule with fewer weights than the rig
+        has bodies for leaves the others off (a batch of rigs runs schedules of different lengths)."""
+        self.check_episode_params(params)
+        count = len(self.load_bodies)
+        if len(loads_kg) > count:
+            raise ValueError(f"the rig has {count} test weights, got {len(loads_kg)}")
+        validate_loads(tuple(loads_kg), params.lander.mass_kg)
+        loads = np.zeros(count)
+        loads[: len(loads_kg)] = loads_kg
         placed = np.asarray(placed, dtype=bool)
         lander_mass = params.lander.mass_kg
         carried = lander_mass + float(np.dot(loads, placed))
@@ -236,14 +248,15 @@ class Rig:
         ]
         # dcmotor bias parameters 3 and 4 are the LuGre Coulomb and static friction.
         if self._motor_lugre:
-            writes.append(("actuator_biasprm", (self._servo, 3), params.servo.coulomb_torque_n_m))
-            writes.append(("actuator_biasprm", (self._servo, 4), params.servo.static_torque_n_m))
+            writes.append(("actuator_biasprm", (self.servo, 3), params.servo.coulomb_torque_n_m))
+            writes.append(("actuator_biasprm", (self.servo, 4), params.servo.static_torque_n_m))
         if self._guide_lugre:
             writes.append(("actuator_biasprm", (self._guide, 3), params.qzs.guide_friction_n))
             writes.append(("actuator_biasprm", (self._guide, 4), params.qzs.guide_static_friction_n))
         return writes
 
-    def _check_episode_params(self, params: RigParams) -> None:
+    def check_episode_params(self, params: RigParams) -> None:
+        """Raise ValueError if ``params`` differs from the built rig's beyond :data:`EPISODE_PARAMETERS`."""
         built, given = parameter_paths(self.params), parameter_paths(params)
         changed = sorted(path for path in built if built[path] != given[path] and path not in EPISODE_PARAMETERS)
         if changed:
@@ -253,16 +266,6 @@ class Rig:
         """Write field values into this rig's model."""
         for name, index, value in writes:
             getattr(self.model, name)[index] = value
-
-    def configure(self, params: RigParams, loads_kg: tuple[float, ...] | None = None) -> None:
-        """Make the model that of ``params`` and these test weights (held), without recompiling."""
-        loads_kg = self.loads_kg if loads_kg is None else tuple(float(m) for m in loads_kg)
-        if len(loads_kg) != len(self.loads_kg):
-            raise ValueError(f"the rig has {len(self.loads_kg)} test weights, got {len(loads_kg)}")
-        validate_loads(loads_kg, params.lander.mass_kg)
-        placed = np.zeros(len(loads_kg), dtype=bool)
-        self.write(self.episode_fields(params, loads_kg, placed, self.trim_height_m))
-        self.params, self.loads_kg, self.placed, self.placed_load_kg = params, loads_kg, placed, 0.0
 
     def place_loads(self, placed: np.ndarray | list[bool]) -> None:
         """Put each test weight on the lander (True) or hold it off (False)."""
@@ -293,18 +296,24 @@ class Rig:
         self.place_loads(np.zeros(len(self.loads_kg), dtype=bool))
         self.trim_balancer(height_m)
         mujoco.mj_resetData(self.model, data)
-        data.qpos[self.screw_qpos] = height_m
-        if self.ideal_drive:
-            data.ctrl[0] = 0.0
-        else:
-            # The speed loop's position term holds the screw's static load with a small lag.
-            load = flexible_unit(self.params).screw_load_n
-            kp, _ = speed_loop_gains(self.params)
-            data.ctrl[:] = (height_m * self.gear + load / (self.gear * kp), 0.0)
-            data.act[self.reference_act] = data.ctrl[0]
-            if self.current_act is not None:  # the torque filter starts settled on that load
-                data.act[self.current_act] = load / self.gear / self.params.servo.torque_constant_n_m_per_a
+        for name, index, value in self.start_state(self.params, height_m):
+            getattr(data, name)[index] = value
         mujoco.mj_forward(self.model, data)
+
+    def start_state(self, params: RigParams, height_m: float) -> list[tuple[str, int, float]]:
+        """The state writes, (MjData field, index, value), after a reset to the model's defaults,
+        that give balanced rest with the foot ``height_m`` above the pad, x = 0, the servo holding."""
+        writes = [("qpos", self.screw_qpos, height_m)]
+        if self.ideal_drive:
+            return [*writes, ("ctrl", 0, 0.0)]
+        # The speed loop's position term holds the screw's static load with a small lag.
+        load = flexible_unit(params).screw_load_n
+        kp, _ = speed_loop_gains(params)
+        reference = height_m * self.gear + load / (self.gear * kp)
+        writes += [("ctrl", 0, reference), ("ctrl", 1, 0.0), ("act", self.reference_act, reference)]
+        if self.current_act is not None:  # the torque filter starts settled on that load
+            writes.append(("act", self.current_act, load / self.gear / params.servo.torque_constant_n_m_per_a))
+        return writes
 
     def drive(self, data: mujoco.MjData, position_ref_rad: float, speed_ref_rad_s: float, steps: int) -> float:
         """Step ``steps`` physics steps at a constant speed reference; returns the position
@@ -322,7 +331,7 @@ class Rig:
         if self.ideal_drive:
             ctrl[0] = speed_ref_rad_s
         else:
-            model.actuator_dynprm[self._servo, SLEW_PARAMETER] = max(abs(speed_ref_rad_s), MIN_SLEW_RAD_S)
+            model.actuator_dynprm[self.servo, SLEW_PARAMETER] = slew_rate(speed_ref_rad_s)
             ctrl[0], ctrl[1] = end, speed_ref_rad_s
         mujoco.mj_step(model, data, nstep=steps)
         return end

@@ -8,6 +8,7 @@ is drawn from the caller's generator (MuJoCo adds none).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -32,17 +33,39 @@ class SensorModel:
         )
         self.noisy = noisy  # False: exact readings (the sensor-noise imperfection off)
 
-    def read(self, rng: np.random.Generator, truth: np.ndarray) -> np.ndarray:
-        """Readings (4, n) of n rigs' true values ``truth`` (4, n): noise added, ruler and encoder quantised."""
+    def read(self, truth: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
+        """Readings (4, n) of n rigs' true values ``truth`` (4, n): noise added (``normals``, (4, n)
+        standard normal draws), ruler and encoder quantised."""
         if not self.noisy:
             return truth
-        readings = truth + self.noise * rng.standard_normal(truth.shape)
+        readings = truth + self.noise * normals
         readings[:2] = np.rint(readings[:2] / self.steps) * self.steps
         return readings
 
 
-def backward_difference(value: np.ndarray, previous: np.ndarray | None, period_s: float) -> np.ndarray:
-    """(value - previous) / period, zero on the first sample (``previous`` None)."""
-    if previous is None:
-        return np.zeros_like(value)
-    return (value - previous) / period_s
+class NoiseDraws:
+    """Standard normal draws for the sensors, one (4,) per rig and control period, taken from each
+    rig's own generator :data:`NOISE_BLOCK` periods at a time (one call per rig per block, not per
+    period). :meth:`restart` at a reset makes a rig's next period draw a fresh block, after what
+    the reset itself drew."""
+
+    def __init__(self, num_rigs: int) -> None:
+        self.block = np.zeros((num_rigs, NOISE_BLOCK, len(SENSORS)))
+        self.used = np.full(num_rigs, NOISE_BLOCK)
+
+    def restart(self, ids: np.ndarray) -> None:
+        self.used[ids] = NOISE_BLOCK
+
+    def draw(self, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
+        """The next draws (4, n) of rigs ``ids``."""
+        used = self.used[ids]
+        for i in ids[used >= NOISE_BLOCK]:
+            self.block[i] = rngs[i].standard_normal((NOISE_BLOCK, len(SENSORS)))
+            self.used[i] = 0
+        used = self.used[ids]
+        self.used[ids] = used + 1
+        return self.block[ids, used].T
+
+
+#: Control periods of sensor noise drawn at once per rig.
+NOISE_BLOCK = 1000

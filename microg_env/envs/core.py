@@ -1,0 +1,556 @@
+"""The landing task over N rigs as arrays: one code path for the single env (N = 1) and the vector env.
+
+:class:`LandingCore` validates the task's settings once, builds the rig, draws each rig's episode
+(schedule, domain randomisation, start height, balancer drift) from that rig's own generator, and
+steps N rigs together: the episode's model field values (test weights placed, pad law, balancer
+trim, randomised lander and friction) are written per rig (:meth:`Rig.episode_fields`), and the
+command delay, the drive's interpolated reference, balancer drift, load placement, sensors,
+reward and termination are array functions over the rigs being stepped. The physics is a
+:class:`~microg_env.sim.physics.ModelPhysics` (one ``MjData``) or a
+:class:`~microg_env.sim.physics.BatchPhysics` (``mujoco.batch``); everything else is the same.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from microg_env import validate
+from microg_env.controllers.base import MAX_SPEED_M_S
+from microg_env.controllers.policy import RESIDUAL_LIMIT_M
+from microg_env.controllers.registry import BASELINES, make_controller
+from microg_env.envs.observation import OBSERVATION_INDEX, SCALES
+from microg_env.imperfections import DomainRandomization, Imperfections, apply_imperfections
+from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, MAX_CONTROL_STEPS, PHYSICS_STEP_S, RigParams
+from microg_env.scenarios import LoadStep, Scenario, ScenarioSampler
+from microg_env.scenarios import condition as paper_condition
+from microg_env.sim.limits import check_pad
+from microg_env.sim.model import (
+    SLEW_PARAMETER,
+    Rig,
+    build_rig,
+    check_physics_step,
+    flexible_unit,
+    slew_rate,
+    validate_loads,
+)
+from microg_env.sim.physics import BatchPhysics, ModelPhysics
+from microg_env.sim.sensors import NoiseDraws, SensorModel
+
+#: Margin before a stroke end (or the pad's full depth) at which the episode terminates, m.
+STOP_MARGIN_M = 1e-4
+#: Clearance the start height keeps above the pad and above every load's switch height, m.
+START_CLEARANCE_M = 1e-3
+#: The actions the environment takes (``action_mode``).
+ACTION_MODES = ("speed", "residual")
+#: Why an episode terminated, by code (0: it did not).
+TERMINATION_REASONS = (None, "guide_stroke_limit", "screw_stroke_limit", "pad_bottomed_out")
+#: The true physical state (and reward) every step reports in ``info``, in this order.
+INFO_KEYS = (
+    "time_s",
+    "x_m",
+    "foot_height_m",
+    "lander_velocity_m_s",
+    "lander_accel_m_s2",
+    "support_position_m",
+    "support_velocity_m_s",
+    "support_force_deviation_n",
+    "pad_force_n",
+    "placed_load_kg",
+    "stage",
+    "command_m_s",
+    "setpoint_m",
+    "servo_torque_n_m",
+    "compensation_error",
+    "reward_x",
+    "termination_reason",
+)
+
+
+def x_reward(x_m: np.ndarray | float, scale_m: float, limit_m: float) -> np.ndarray | float:
+    """The reward for holding x: 1 - log(1 + (x/scale)^2) / log(1 + (limit/scale)^2).
+
+    In decades: it falls by the same amount for each decade that x grows, from ``scale`` (x's noise
+    floor) to ``limit`` (the guide's half stroke), so it keeps a gradient from millimetres down to
+    nanometres; it is 1 at x = 0 and 0 at the guide's end, never negative, so an episode that ends
+    early only forgoes what it would have earned.
+    """
+    return 1.0 - np.log1p((np.asarray(x_m) / scale_m) ** 2) / math.log1p((limit_m / scale_m) ** 2)
+
+
+@dataclass(frozen=True)
+class Episode:
+    """What a reset draws for one rig."""
+
+    params: RigParams  # the rig (a draw of the domain randomisation, if any)
+    scenario: Scenario  # the schedule (drawn, with the drawn test weights)
+    height_m: float  # the foot's start height above the pad
+    drift_rate_k_per_s: float  # the balancer gas's temperature rate
+
+
+class LandingCore:
+    """N rigs of ``MicroGravityLanding-v1`` (the arguments are the environment's; see its docstring).
+
+    ``scenarios`` gives each rig its own schedule (N of them; instead of ``scenario``/``condition``).
+    ``batched`` steps the rigs on ``mujoco.batch`` with ``nthread`` threads (0: every core); else
+    the one rig steps its own ``MjData``.
+    """
+
+    def __init__(
+        self,
+        num_rigs: int = 1,
+        condition: int = 1,
+        scenario: Scenario | None = None,
+        scenario_sampler: ScenarioSampler | str | Mapping | None = None,
+        control_period_s: float = CONTROL_PERIOD_S,
+        physics_step_s: float = PHYSICS_STEP_S,
+        decision_period: int = 1,
+        action_mode: str = "speed",
+        base_controller: str = "pid",
+        residual_limit_m: float = RESIDUAL_LIMIT_M,
+        imperfections: Imperfections | Mapping | None = None,
+        domain_randomization: DomainRandomization | Mapping | bool | None = None,
+        params: RigParams | None = None,
+        xml_file: str | None = None,
+        reward_scale_m: float = 1e-8,
+        reset_noise_scale: float = 0.0,
+        scenarios: Sequence[Scenario] | None = None,
+        batched: bool = False,
+        nthread: int = 0,
+    ) -> None:
+        if not batched and num_rigs != 1:
+            raise ValueError(f"{num_rigs} rigs need batched=True (one MjData holds one rig)")
+        self.num_rigs = num_rigs
+        self.scenario_sampler = _sampler(scenario_sampler)
+        if self.scenario_sampler is not None and (scenario is not None or scenarios is not None):
+            raise ValueError("give scenario (or scenarios) or scenario_sampler, not both")
+        if scenarios is not None and scenario is not None:
+            raise ValueError("give scenario or scenarios (one per rig), not both")
+        self.scenario = paper_condition(condition) if scenario is None else scenario
+        validate.instance("scenario", self.scenario, Scenario)
+        if scenarios is not None:
+            scenarios = tuple(scenarios)
+            if len(scenarios) != num_rigs:
+                raise ValueError(f"scenarios must give one Scenario per rig ({num_rigs}), got {len(scenarios)}")
+            for i, each in enumerate(scenarios):
+                validate.instance(f"scenarios[{i}]", each, Scenario)
+            self.scenario = scenarios[0]
+        self.scenarios = scenarios if scenarios is not None else (self.scenario,) * num_rigs
+        self.imperfections = _imperfections(imperfections)
+        self.domain_randomization = _randomization(domain_randomization)
+        self.base_params = RigParams() if params is None else params
+        validate.instance("params", self.base_params, RigParams)
+        self.physics_step_s = check_physics_step(physics_step_s)
+        self.control_period_s = _check_control_period(control_period_s, self.physics_step_s)
+        self.frame_skip = round(self.control_period_s / self.physics_step_s)
+        self.decision_period = validate.integer("decision_period", decision_period, 1, 1000)
+        self.action_mode = validate.choice("action_mode", action_mode, ACTION_MODES)
+        self.base_controller = validate.choice("base_controller", base_controller, BASELINES)
+        self.residual_limit_m = validate.positive("residual_limit_m", residual_limit_m, "m", 1e-3)
+        self.reward_scale_m = validate.between("reward_scale_m", reward_scale_m, 1e-12, 1e-3, "m")
+        self.reset_noise_scale = max(_check_reset_noise(reset_noise_scale, s) for s in set(self.scenarios))
+        if self.scenario_sampler is not None and self.reset_noise_scale > 0:
+            raise ValueError(
+                f"reset_noise_scale {reset_noise_scale!r} m: a scenario_sampler draws the start height itself "
+                "(its descent_height_m range); give one or the other"
+            )
+        self.xml_file = None if xml_file is None else str(xml_file)
+
+        schedules = tuple(dict.fromkeys(self.scenarios))
+        nominal = [apply_imperfections(s.rig_params(self.base_params), self.imperfections) for s in schedules]
+        if self.scenario_sampler is not None:
+            schedules = self.scenario_sampler.extremes(nominal[0].lander.mass_kg, nominal[0].gravity_m_s2)
+            nominal = nominal[:1] * len(schedules)
+        for each, schedule in zip(nominal, schedules, strict=True):
+            self._check_scenario_fits(each, schedule)
+        most_loads = max(schedules, key=lambda s: len(s.loads))
+        self.rig: Rig = build_rig(
+            nominal[0],
+            most_loads.loads_kg,
+            xml_file=self.xml_file,
+            physics_step_s=self.physics_step_s,
+            ideal_drive=not self.imperfections.servo_lag,
+        )
+        for each in nominal[1:]:
+            self.rig.check_episode_params(each)  # one compiled model for every rig's schedule
+        self.nominal_params = nominal[0]
+        self.physics = (
+            ModelPhysics(self.rig.model) if num_rigs == 1 else BatchPhysics(self.rig.model, num_rigs, nthread)
+        )
+        self.sensors = SensorModel(self.nominal_params, self.control_period_s, self.imperfections.sensor_noise)
+        self._noise = NoiseDraws(num_rigs)
+        params = self.nominal_params
+        self.x_limit_m = params.qzs.stroke_m / 2.0 - STOP_MARGIN_M
+        low, high = params.screw.range_m
+        self._screw_limits = (low + STOP_MARGIN_M, high - STOP_MARGIN_M)
+        self._floor = -(params.pad.thickness_m - STOP_MARGIN_M)
+        rig, model = self.rig, self.rig.model
+        self._drift_dof = rig.screw_dof if params.balancer.placement == "frame_support" else rig.qzs_dof
+        self._accel_adr = int(model.sensor_adr[model.sensor("lander_accel").id]) + 2
+        self._force_adr = int(model.sensor_adr[model.sensor("pad_force").id])
+        self._slew = None if rig.ideal_drive else self.physics.field("actuator_dynprm")
+        self.base = make_controller(self.base_controller, self.control_period_s) if action_mode == "residual" else None
+
+        n = num_rigs
+        #: Each rig's episode (None before its first reset).
+        self.episodes: list[Episode | None] = [None] * n
+        self.observation = np.zeros((n, len(SCALES)), dtype=np.float32)
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.max_steps = np.zeros(n, dtype=np.int64)
+        self.next_load = np.zeros(n, dtype=np.int64)
+        self.placed = np.zeros((n, len(rig.load_bodies)), dtype=bool)
+        self.placed_load_kg = np.zeros(n)
+        self.loads_kg = np.zeros((n, len(rig.load_bodies)))
+        self.switch_height_m = np.full((n, len(rig.load_bodies)), np.inf)  # inf: placed at t = 0
+        self.load_count = np.zeros(n, dtype=np.int64)
+        self.reference_weight_n = np.ones(n)
+        self.previous_action = np.zeros(n)
+        self.pending_command = np.zeros(n)  # m/s, reaching the drive at the next period (control delay)
+        self.command = np.zeros(n)  # m/s, the command the drive last received
+        self.base_command = np.zeros(n)  # m/s, the base controller's last command (residual mode)
+        self.position_ref = np.zeros(n)  # the drive's interpolated position reference, motor rad
+        self.drift_n_per_s = np.zeros(n)
+        self.x_stiffness = np.zeros(n)
+        self.trim_height_m = np.zeros(n)
+        self.gravity = np.full(n, params.gravity_m_s2)
+        self.last_readings = np.zeros((2, n))  # ruler and encoder at the previous period
+        self.fresh = np.ones(n, dtype=bool)  # no previous reading yet: rates are 0
+
+    # -- episodes ------------------------------------------------------------------------------
+
+    def _check_scenario_fits(self, params: RigParams, scenario: Scenario) -> None:
+        """Reject, before any episode, a schedule the rig cannot run (named in the error)."""
+        top = params.screw.range_m[1] - STOP_MARGIN_M - 0.01
+        if scenario.descent_height_m + self.reset_noise_scale > top:
+            noise = f" plus reset_noise_scale {self.reset_noise_scale!r} m" if self.reset_noise_scale else ""
+            raise ValueError(
+                f"Scenario.descent_height_m {scenario.descent_height_m!r} m{noise} is above the screw's reach "
+                f"({top:.3f} m)"
+            )
+        steps = round(scenario.duration_s / self.control_period_s)
+        if steps < 1:
+            raise ValueError(
+                f"Scenario.duration_s {scenario.duration_s:g} s is shorter than one control period "
+                f"({self.control_period_s:g} s)"
+            )
+        if steps > MAX_CONTROL_STEPS:
+            raise ValueError(
+                f"Scenario.duration_s {scenario.duration_s:g} s at control_period_s {self.control_period_s:g} s "
+                f"is {steps} control steps, more than the {MAX_CONTROL_STEPS} one run may take"
+            )
+        g, mass, load = params.gravity_m_s2, params.lander.mass_kg, sum(scenario.loads_kg)
+        validate_loads(scenario.loads_kg, mass)
+        highest = replace(scenario, descent_height_m=scenario.descent_height_m + self.reset_noise_scale)
+        speed = highest.impact_speed_m_s(mass, g)
+        check_pad(params, mass + load, speed, load * g, self.physics_step_s, scenario.name)
+        if self.domain_randomization is not None:
+            self.domain_randomization.check(params, highest, self.physics_step_s)
+
+    def draw_episode(self, rig: int, rng: np.random.Generator) -> Episode:
+        """Rig ``rig``'s next episode: its rig, schedule, start height and balancer drift, drawn from ``rng``."""
+        scenario = self.scenarios[rig]
+        params = apply_imperfections(scenario.rig_params(self.base_params), self.imperfections)
+        if self.scenario_sampler is not None:
+            scenario = self.scenario_sampler.sample(rng, self.base_params.lander.mass_kg, self.base_params.gravity_m_s2)
+        if self.domain_randomization is not None:
+            drawn, loads = self.domain_randomization.sample(
+                self.scenarios[rig].rig_params(self.base_params), scenario.loads_kg, rng
+            )
+            params = apply_imperfections(drawn, self.imperfections)
+            steps = tuple(LoadStep(mass, step.height_m) for mass, step in zip(loads, scenario.loads, strict=True))
+            scenario = replace(scenario, loads=steps)
+        height = scenario.descent_height_m
+        if self.reset_noise_scale > 0:
+            height += rng.uniform(-self.reset_noise_scale, self.reset_noise_scale)
+        drift = params.drift
+        rate = rng.uniform(-1.0, 1.0) * drift.max_temperature_rate_k_per_s if self.imperfections.balancer_drift else 0.0
+        return Episode(params, scenario, height, rate)
+
+    def reset(self, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
+        """Start a new episode on rigs ``ids``, each drawn from its generator ``rngs[rig]``.
+
+        Every draw and check comes before anything is written, so a reset that raises changes no rig.
+        """
+        ids = np.asarray(ids, dtype=np.int64)
+        episodes = [self.draw_episode(int(i), rngs[i]) for i in ids]
+        nobody = np.zeros(len(self.rig.load_bodies), dtype=bool)
+        writes = [self.rig.episode_fields(e.params, e.scenario.loads_kg, nobody, e.height_m) for e in episodes]
+        physics, rig = self.physics, self.rig
+        for i, episode, fields in zip(ids, episodes, writes, strict=True):
+            self.episodes[i] = episode
+            physics.write(int(i), fields)
+            loads = np.zeros(len(rig.load_bodies))
+            switch = np.full(len(rig.load_bodies), np.inf)
+            for k, load in enumerate(episode.scenario.loads):
+                loads[k] = load.mass_kg
+                switch[k] = np.inf if load.height_m is None else load.height_m
+            self.loads_kg[i], self.switch_height_m[i] = loads, switch
+            self.load_count[i] = len(episode.scenario.loads)
+            unit = flexible_unit(episode.params)
+            self.drift_n_per_s[i] = (
+                unit.balancer_force_n * episode.drift_rate_k_per_s / episode.params.drift.gas_temperature_k
+            )
+            self.x_stiffness[i] = unit.x_stiffness_n_per_m
+            self.max_steps[i] = round(episode.scenario.duration_s / self.control_period_s)
+            self.reference_weight_n[i] = episode.scenario.loads[0].mass_kg * episode.params.gravity_m_s2
+            self.gravity[i] = episode.params.gravity_m_s2
+            self.trim_height_m[i] = episode.height_m
+        physics.reset(ids)
+        for i, episode in zip(ids, episodes, strict=True):
+            for name, index, value in rig.start_state(episode.params, episode.height_m):
+                getattr(physics, name)[i, index] = value
+        self.position_ref[ids] = 0.0 if rig.ideal_drive else physics.ctrl[ids, 0]
+        self.steps[ids] = 0
+        self.next_load[ids] = 0
+        self.placed[ids] = False
+        self.placed_load_kg[ids] = 0.0
+        self.previous_action[ids] = 0.0
+        self.pending_command[ids] = 0.0
+        self.command[ids] = 0.0
+        self.base_command[ids] = 0.0
+        self.fresh[ids] = True
+        self._noise.restart(ids)
+        if self.base is not None:
+            self.base.reset(ids)
+        self._place_due_loads(ids, self.trim_height_m[ids])
+        physics.forward(ids)
+        self.observation[ids] = self.sense(ids, ids, rngs)
+
+    def _place_due_loads(self, ids: np.ndarray, height_m: np.ndarray) -> None:
+        """Place the test weights whose switch height the foot has come down to (Scenario.loads_due)."""
+        placed = self.placed[ids] | (height_m[:, None] <= self.switch_height_m[ids])
+        placed &= np.arange(placed.shape[1]) < self.load_count[ids, None]
+        placed = np.cumsum(~placed, axis=1) == 0  # in order: a weight waits for the one before it
+        changed = np.flatnonzero((placed != self.placed[ids]).any(axis=1))
+        for j in changed:
+            i = int(ids[j])
+            episode = self.episodes[i]
+            self.physics.write(
+                i, self.rig.episode_fields(episode.params, episode.scenario.loads_kg, placed[j], self.trim_height_m[i])
+            )
+            self.placed[i] = placed[j]
+            self.next_load[i] = int(placed[j].sum())
+            self.placed_load_kg[i] = float(np.dot(self.loads_kg[i], placed[j]))
+            # The compensation error is measured against the weight placed (the first before any is).
+            reference = max(self.placed_load_kg[i], self.loads_kg[i, 0])
+            self.reference_weight_n[i] = reference * episode.params.gravity_m_s2
+
+    # -- stepping ------------------------------------------------------------------------------
+
+    def step(
+        self, ids: np.ndarray, actions: np.ndarray, rngs: Sequence[np.random.Generator]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One environment step of rigs ``ids`` (sorted, unique) with ``actions`` (clipped, one per
+        rig): the action held for ``decision_period`` control periods or until the rig's episode ends.
+
+        Returns the mean reward over the periods run, the termination codes
+        (:data:`TERMINATION_REASONS`), whether each was truncated, and the periods run.
+        """
+        if self.base is not None:
+            self.base.setpoint_m[self._index(ids)] = actions * self.residual_limit_m
+        total = np.zeros(ids.size)
+        periods = np.zeros(ids.size, dtype=np.int64)
+        codes = np.zeros(ids.size, dtype=np.int64)
+        truncated = np.zeros(ids.size, dtype=bool)
+        running = np.arange(ids.size)
+        for _ in range(self.decision_period):
+            rigs = ids[running]
+            index = self._index(rigs)
+            if self.base is None:
+                command = actions[running] * MAX_SPEED_M_S
+            else:
+                every = isinstance(index, slice)
+                action = self.base(self.observation[index], ids=None if every else rigs)[:, 0]
+                command = action.astype(np.float64) * MAX_SPEED_M_S
+                self.base_command[index] = command
+            code = self._control_period(index, rigs, command)
+            self.previous_action[index] = actions[running]
+            self.observation[index] = self.sense(index, rigs, rngs)
+            total[running] += x_reward(self.physics.qpos[index, self.rig.qzs_qpos], self.reward_scale_m, self.x_limit_m)
+            periods[running] += 1
+            codes[running] = code
+            ended = (code == 0) & (self.steps[index] >= self.max_steps[index])
+            truncated[running] = ended
+            running = running[(code == 0) & ~ended]
+            if not running.size:
+                break
+        return total / periods, codes, truncated, periods
+
+    def _index(self, ids: np.ndarray) -> np.ndarray | slice:
+        """``ids`` as an index into per-rig arrays: a slice when it is every rig (faster)."""
+        return slice(None) if ids.size == self.num_rigs else ids
+
+    def _control_period(self, index: np.ndarray | slice, ids: np.ndarray, command_m_s: np.ndarray) -> np.ndarray:
+        """Advance rigs ``ids`` (``index`` into per-rig arrays) one control period with the drive
+        taking ``command_m_s`` (after the delay, if on); returns their termination codes."""
+        physics, rig = self.physics, self.rig
+        command = np.minimum(np.maximum(command_m_s, -MAX_SPEED_M_S), MAX_SPEED_M_S)
+        if self.imperfections.control_delay:
+            command, self.pending_command[index] = self.pending_command[index].copy(), command
+        self.command[index] = command
+        time = self.steps[index] * self.control_period_s
+        physics.qfrc_applied[index, self._drift_dof] = self.drift_n_per_s[index] * time
+        # The drive interpolates its position reference as a ramp at the commanded speed: the
+        # dcmotor's slew limiter moves the setpoint (the period's end) at the commanded rate.
+        speed = command * rig.gear
+        end = self.position_ref[index] + speed * (self.physics_step_s * self.frame_skip)
+        if self._slew is None:
+            physics.ctrl[index, 0] = speed
+        else:
+            self._slew[index, rig.servo, SLEW_PARAMETER] = slew_rate(speed)
+            physics.ctrl[index, 0] = end
+            physics.ctrl[index, 1] = speed
+        physics.step(ids, self.frame_skip)
+        self.position_ref[index] = end
+        self.steps[index] += 1
+        waiting = self.next_load[index] < self.load_count[index]
+        if waiting.any():
+            rigs = ids[waiting]
+            height = self.foot_height(rigs)
+            due = height <= self.switch_height_m[rigs, self.next_load[rigs]]
+            if due.any():
+                self._place_due_loads(rigs[due], height[due])
+        return self._termination(index)
+
+    def _termination(self, index: np.ndarray | slice) -> np.ndarray:
+        qpos, rig = self.physics.qpos, self.rig
+        screw, x = qpos[index, rig.screw_qpos], qpos[index, rig.qzs_qpos]
+        low, high = self._screw_limits
+        code = np.where(screw + x <= self._floor, 3, 0)
+        code = np.where((screw <= low) | (screw >= high), 2, code)
+        return np.where(np.abs(x) >= self.x_limit_m, 1, code)
+
+    # -- what the rigs show ----------------------------------------------------------------------
+
+    def foot_height(self, ids: np.ndarray) -> np.ndarray:
+        """Height of the foot's sole above the undeformed pad, m (negative: deforming the pad)."""
+        qpos = self.physics.qpos
+        return qpos[ids, self.rig.screw_qpos] + qpos[ids, self.rig.qzs_qpos]
+
+    def sense(self, index: np.ndarray | slice, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
+        """Observations of rigs ``ids`` (``index`` into per-rig arrays): the sensors read (noise from
+        each rig's generator, quantisation, rates by backward difference), each divided by its scale."""
+        physics, rig = self.physics, self.rig
+        truth = np.empty((4, ids.size))
+        truth[0] = physics.qpos[index, rig.qzs_qpos]
+        truth[1] = physics.qpos[index, rig.screw_qpos]
+        truth[2] = physics.sensordata[index, self._accel_adr] - self.gravity[index]
+        truth[3] = physics.sensordata[index, self._force_adr]
+        readings = self.sensors.read(truth, self._noise.draw(ids, rngs) if self.sensors.noisy else None)
+        rates = (readings[:2] - self.last_readings[:, index]) / self.control_period_s
+        rates[:, self.fresh[index]] = 0.0
+        self.last_readings[:, index] = readings[:2]
+        self.fresh[index] = False
+        raw = np.empty((ids.size, len(SCALES)))
+        raw[:, 0], raw[:, 1], raw[:, 2], raw[:, 3] = readings[0], rates[0], readings[1], rates[1]
+        raw[:, 4], raw[:, 5], raw[:, 6] = readings[2], readings[3], readings[1] + readings[0]
+        raw[:, 7], raw[:, 8] = self.placed_load_kg[index], self.previous_action[index]
+        raw[:, OBSERVATION_INDEX["base_command"]] = self.base_command[index]
+        return (raw / SCALES).astype(np.float32)
+
+    def info(self, ids: np.ndarray, codes: np.ndarray) -> dict[str, np.ndarray]:
+        """The true physical state of rigs ``ids`` (:data:`INFO_KEYS`), one array entry per rig."""
+        physics, rig = self.physics, self.rig
+        qpos, qvel, qacc = physics.qpos[ids], physics.qvel[ids], physics.qacc[ids]
+        x = qpos[:, rig.qzs_qpos]
+        deviation = -self.x_stiffness[ids] * x
+        if self._drift_dof == rig.qzs_dof:
+            deviation = deviation + physics.qfrc_applied[ids, rig.qzs_dof]
+        values = {
+            "time_s": self.steps[ids] * self.control_period_s,
+            "x_m": x,
+            "foot_height_m": qpos[:, rig.screw_qpos] + x,
+            "lander_velocity_m_s": qvel[:, rig.screw_dof] + qvel[:, rig.qzs_dof],
+            "lander_accel_m_s2": qacc[:, rig.screw_dof] + qacc[:, rig.qzs_dof],
+            "support_position_m": qpos[:, rig.screw_qpos],
+            "support_velocity_m_s": qvel[:, rig.screw_dof],
+            "support_force_deviation_n": deviation,
+            "pad_force_n": physics.sensordata[ids, self._force_adr],
+            "placed_load_kg": self.placed_load_kg[ids],
+            "stage": self.next_load[ids] - 1,
+            "command_m_s": self.command[ids],
+            "setpoint_m": self.base.setpoint_m[ids] if self.base is not None else np.zeros(ids.size),
+            "servo_torque_n_m": physics.actuator_force[ids, rig.servo],
+            "compensation_error": deviation / self.reference_weight_n[ids],
+            "reward_x": x_reward(x, self.reward_scale_m, self.x_limit_m),
+        }
+        # Copies: with every rig selected the indexing gives views of the live state.
+        return {key: np.array(value) for key, value in values.items()} | {
+            "termination_reason": np.array([TERMINATION_REASONS[c] for c in codes], dtype=object)
+        }
+
+
+def check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """The actions as floats clipped to [-1, 1], flat; NaN, infinite, non-numeric or wrongly shaped
+    actions raise ValueError (``shape`` is (1,) for one rig, (N, 1) for N)."""
+    array = np.asarray(actions)
+    if array.dtype.kind not in "fiu":  # not bool, complex, string or object
+        raise ValueError(f"action must be a real-valued array of shape {shape}, got {actions!r}")
+    if array.shape != shape:
+        raise ValueError(f"action must have shape {shape}, got shape {array.shape}")
+    values = array.reshape(-1).astype(np.float64)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        raise ValueError(f"action must be finite, got {float(values[bad][0])!r}")
+    return np.clip(values, -1.0, 1.0)  # out-of-range actions are clipped to the drive's range
+
+
+def _sampler(value: ScenarioSampler | str | Mapping | None) -> ScenarioSampler | None:
+    if value is None or isinstance(value, ScenarioSampler):
+        return value
+    if value == "training":
+        return ScenarioSampler()
+    if isinstance(value, Mapping):
+        return ScenarioSampler(**{k: tuple(v) if isinstance(v, list) else v for k, v in value.items()})
+    raise ValueError(f"scenario_sampler must be a ScenarioSampler, 'training' or a dict, got {value!r}")
+
+
+def _imperfections(value: Imperfections | Mapping | None) -> Imperfections:
+    if value is None:
+        return Imperfections()
+    if isinstance(value, Mapping):
+        return Imperfections(**value)
+    return validate.instance("imperfections", value, Imperfections)
+
+
+def _randomization(value: DomainRandomization | Mapping | bool | None) -> DomainRandomization | None:
+    if value is None or value is False:
+        return None
+    if value is True:
+        return DomainRandomization()
+    if isinstance(value, Mapping):
+        return DomainRandomization(**value)
+    return validate.instance("domain_randomization", value, DomainRandomization)
+
+
+def _check_control_period(control_period_s: float, physics_step_s: float) -> float:
+    low, high = CONTROL_PERIOD_RANGE_S
+    period = validate.positive("control_period_s", control_period_s, "s")
+    if not low - 1e-12 <= period <= high + 1e-12:
+        raise ValueError(
+            f"control_period_s must be in [{low:g}, {high:g}] s (the RTX timer's 100 us to 10 ms), "
+            f"got {control_period_s!r}"
+        )
+    steps = period / physics_step_s
+    if abs(steps - round(steps)) > 1e-6 * steps:
+        raise ValueError(
+            f"control_period_s {control_period_s!r} s must be a whole number of physics steps of {physics_step_s:g} s"
+        )
+    return period
+
+
+def _check_reset_noise(reset_noise_scale: float, scenario: Scenario) -> float:
+    """The start-height perturbation must keep the start clear of the pad and of every switch height."""
+    noise = validate.non_negative("reset_noise_scale", reset_noise_scale, "m")
+    room = scenario.descent_height_m - max(scenario.lowest_switch_height_m, 0.0) - START_CLEARANCE_M
+    if noise > 0 and noise > room:
+        raise ValueError(
+            f"reset_noise_scale {reset_noise_scale!r} m would start the foot below "
+            f"{max(scenario.lowest_switch_height_m, 0.0) * 1e3:g} mm + 1 mm (the pad or a load's switch height); "
+            f"at most {max(room, 0.0):.4g} m for {scenario.name}"
+        )
+    return noise

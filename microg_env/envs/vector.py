@@ -1,0 +1,190 @@
+"""The vector environment: N rigs of ``MicroGravityLanding-v1`` stepped together on ``mujoco.batch``.
+
+``gym.make_vec("microg_env:MicroGravityLanding-v1", num_envs=N, vectorization_mode="vector_entry_point")``
+returns :class:`MicroGravityLandingVectorEnv`. It is the same :class:`~microg_env.envs.core.LandingCore`
+as the single environment with N rigs and a :class:`~microg_env.sim.physics.BatchPhysics`: rig i
+reset with seed s runs exactly the episode the single environment runs with seed s, observation
+for observation, and its observations, rewards, terminations, truncations and infos are those a
+``gymnasium.vector.SyncVectorEnv`` of single environments returns, in Gymnasium's layout
+(info arrays with ``_key`` masks) and with its autoreset modes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from microg_env import validate
+from microg_env.envs.core import INFO_KEYS, LandingCore, check_actions
+from microg_env.envs.observation import SCALES
+from microg_env.scenarios import Scenario
+
+#: Most rigs one vector environment steps (a batch's memory grows with it).
+MAX_RIGS = 4096
+
+
+class MicroGravityLandingVectorEnv(VectorEnv):
+    """N rigs of ``MicroGravityLanding-v1`` on ``mujoco.batch.Batch``.
+
+    Takes the single environment's keyword arguments (no rendering) and:
+
+    | argument | default | meaning |
+    |---|---|---|
+    | ``num_envs`` | 1 | the number of rigs N |
+    | ``autoreset_mode`` | ``NEXT_STEP`` | Gymnasium's ``AutoresetMode`` (or ``"NextStep"``, ``"SameStep"``...) |
+    | ``scenarios`` | None | one ``Scenario`` per rig (instead of ``scenario``/``condition``) |
+    | ``nthread`` | 0 | threads stepping the batch (0: every core) |
+
+    ``reset(seed=s)`` seeds rig i with s + i (a list gives one seed per rig); each rig keeps its own
+    generator through autoresets, as the single environments of a ``SyncVectorEnv`` do.
+    ``options={"reset_mask": mask}`` resets only the rigs ``mask`` selects.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        scenarios: Sequence[Scenario] | None = None,
+        nthread: int = 0,
+        render_mode: None = None,
+        **kwargs: Any,
+    ) -> None:
+        self.num_envs = validate.integer("num_envs", num_envs, 1, MAX_RIGS)
+        if render_mode is not None:
+            raise ValueError(
+                f"render_mode {render_mode!r}: the vector environment does not render; render a single env"
+            )
+        try:
+            self.autoreset_mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            modes = ", ".join(mode.value for mode in AutoresetMode)
+            raise ValueError(f"autoreset_mode must be one of {modes}, got {autoreset_mode!r}") from None
+        nthread = validate.integer("nthread", nthread, 0, 1024)
+        self.core = LandingCore(self.num_envs, scenarios=scenarios, batched=True, nthread=nthread, **kwargs)
+        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
+        self.render_mode = None
+        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, shape=(len(SCALES),), dtype=np.float32)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._all = np.arange(self.num_envs)
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
+        self._seeds: list[int | None] = [None] * self.num_envs
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)
+        self._started = False
+
+    @property
+    def np_random_seed(self) -> tuple[int | None, ...]:
+        """Each rig's seed (None: drawn from the operating system's entropy; -1 before any reset)."""
+        return tuple(-1 if rng is None else seed for rng, seed in zip(self._rngs, self._seeds, strict=True))
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None):
+        seeds = self._seed_list(seed)
+        mask = np.ones(self.num_envs, dtype=bool)
+        if options is not None and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"])
+            if mask.shape != (self.num_envs,) or mask.dtype != np.bool_ or not mask.any():
+                raise ValueError(
+                    f"options['reset_mask'] must be a bool array of shape ({self.num_envs},) with a True, got {mask!r}"
+                )
+        ids = self._all[mask]
+        previous = list(self._rngs), list(self._seeds)
+        try:
+            for i in ids:
+                if seeds[i] is not None or self._rngs[i] is None:
+                    self._rngs[i], self._seeds[i] = seeding.np_random(seeds[i])
+            self.core.reset(ids, self._rngs)  # draws and checks before it writes
+        except BaseException:  # a failed reset leaves every rig as it was
+            self._rngs, self._seeds = previous
+            raise
+        self._autoreset[ids] = False
+        self._started = True
+        return self.core.observation.copy(), self._info(ids, np.zeros(ids.size, dtype=np.int64))
+
+    def _seed_list(self, seed: int | Sequence[int | None] | None) -> list[int | None]:
+        if seed is None:
+            return [None] * self.num_envs
+        if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
+            base = validate.integer("seed", int(seed), 0)
+            return [base + i for i in range(self.num_envs)]
+        seeds = list(seed)
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"seed must be an int or one seed per rig ({self.num_envs}), got {len(seeds)}")
+        return [None if s is None else validate.integer("seed", int(s), 0) for s in seeds]
+
+    def step(self, actions):
+        if not self._started:
+            from gymnasium.error import ResetNeeded
+
+            raise ResetNeeded("call reset() before step()")
+        values = check_actions(actions, (self.num_envs, 1))
+        core, n = self.core, self.num_envs
+        rewards = np.zeros(n)
+        codes = np.zeros(n, dtype=np.int64)
+        truncated = np.zeros(n, dtype=bool)
+        resetting = self._autoreset if self.autoreset_mode == AutoresetMode.NEXT_STEP else np.zeros(n, dtype=bool)
+        if self.autoreset_mode == AutoresetMode.DISABLED and self._autoreset.any():
+            raise ValueError(
+                f"rigs {self._all[self._autoreset].tolist()} ended: reset them (options={{'reset_mask': ...}}) "
+                "before stepping with autoreset_mode Disabled"
+            )
+        stepping = self._all[~resetting]
+        if resetting.any():
+            core.reset(self._all[resetting], self._rngs)
+        if stepping.size:
+            reward, code, cut, _ = core.step(stepping, values[stepping], self._rngs)
+            rewards[stepping], codes[stepping], truncated[stepping] = reward, code, cut
+        terminated = codes != 0
+        ended = terminated | truncated
+        observations = core.observation.copy()
+        info = self._info(self._all, codes)
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and ended.any():
+            done = self._all[ended]
+            final_obs = np.full(n, None, dtype=object)
+            for i in done:
+                final_obs[i] = observations[i].copy()
+            final_info = {key: value.copy() for key, value in info.items()}
+            for key in INFO_KEYS:
+                final_info[f"_{key}"] = ended.copy()
+            core.reset(done, self._rngs)
+            observations[done] = core.observation[done]
+            after = self._info(done, np.zeros(done.size, dtype=np.int64))
+            for key in INFO_KEYS:
+                info[key][done] = after[key]
+            info |= {"final_obs": final_obs, "_final_obs": ended.copy(), "final_info": final_info}
+            info["_final_info"] = ended.copy()
+        else:
+            self._autoreset = ended
+        return observations, rewards, terminated, truncated, info
+
+    def _info(self, ids: np.ndarray, codes: np.ndarray) -> dict[str, np.ndarray]:
+        """Gymnasium's vector info: every key an array over the rigs ``ids``, with its ``_key`` mask."""
+        values = self.core.info(ids, codes)
+        info: dict[str, np.ndarray] = {}
+        mask = np.zeros(self.num_envs, dtype=bool)
+        mask[ids] = True
+        for key in INFO_KEYS:
+            value = values[key]
+            if ids.size == self.num_envs:
+                array = value
+            else:
+                array = (
+                    np.full(self.num_envs, None, dtype=object)
+                    if value.dtype == object
+                    else np.zeros(self.num_envs, dtype=value.dtype)
+                )
+                array[ids] = value
+            info[key] = array
+            info[f"_{key}"] = mask.copy()
+        return info
+
+    def close_extras(self, **kwargs: Any) -> None:
+        """Nothing to free beyond the batch, which goes with the environment."""

@@ -1,0 +1,232 @@
+"""The vector environment on mujoco.batch: the single env's episodes exactly, Gymnasium's vector
+contract (against SyncVectorEnv), stable-baselines3's VecEnv contract, batched comparisons."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import data_equivalence
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+import microg_env  # noqa: F401  (registers the environment)
+from microg_env.analysis.batch import Episode, run_batch
+from microg_env.analysis.evaluate import run_episode
+from microg_env.controllers.registry import make_controller
+from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.envs.vector import MicroGravityLandingVectorEnv
+from microg_env.scenarios import LoadStep, Scenario, condition
+
+ENV_ID = "microg_env:MicroGravityLanding-v1"
+#: Short episodes, so that autoresets come within a test: 40 control periods.
+SHORT = Scenario("short", (LoadStep(0.49), LoadStep(0.3, height_m=0.0898)), descent_height_m=0.09, duration_s=0.04)
+
+
+def _rollout(env, actions, seed):
+    """Observations, rewards, terminations, truncations and x of one env under ``actions``."""
+    out = {"obs": [], "reward": [], "terminated": [], "truncated": [], "x": [], "setpoint": []}
+    obs, info = env.reset(seed=seed)
+    out["obs"].append(obs)
+    out["x"].append(info["x_m"])
+    for action in actions:
+        obs, reward, terminated, truncated, info = env.step(action)
+        for key, value in zip(out, (obs, reward, terminated, truncated, info["x_m"], info["setpoint_m"]), strict=True):
+            out[key].append(value)
+    return {key: np.array(value) for key, value in out.items()}
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"condition": 3, "domain_randomization": True},  # every imperfection, randomised plants
+        {"condition": 2, "action_mode": "residual", "base_controller": "feedforward", "decision_period": 3},
+    ],
+    ids=["speed-randomised", "residual-feedforward"],
+)
+def test_each_rig_runs_exactly_the_single_envs_episode(kwargs):
+    """Rig i seeded s + i gives the single env's episode seeded s + i, bit for bit."""
+    n, seed = 3, 40
+    actions = np.random.default_rng(1).uniform(-0.02, 0.02, size=(150, n, 1)).astype(np.float32)
+    vector = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
+    assert isinstance(vector, MicroGravityLandingVectorEnv)
+    batched = _rollout(vector, actions, seed)
+    for i in range(n):
+        single = _rollout(gym.make(ENV_ID, **kwargs), actions[:, i], seed + i)
+        for key, values in single.items():
+            np.testing.assert_array_equal(batched[key][:, i], values, err_msg=f"rig {i} {key}")
+    assert np.ptp(batched["x"][-1]) > 0  # the rigs differ (noise, drift, plants): the test can fail
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
+def test_steps_exactly_as_a_sync_vector_env_of_single_envs_through_autoresets(mode):
+    """Gymnasium's vector contract, checked against its own SyncVectorEnv: spaces, seeding,
+    observations, rewards, terminations (large actions hit the guide's end), truncations, infos
+    and autoresets, in both autoreset modes."""
+    n = 3
+    kwargs = {"scenario": SHORT, "domain_randomization": True}
+    ours = MicroGravityLandingVectorEnv(n, autoreset_mode=mode, **kwargs)
+    theirs = SyncVectorEnv([lambda: MicroGravityLandingEnv(**kwargs) for _ in range(n)], autoreset_mode=mode)
+    assert ours.single_observation_space == theirs.single_observation_space
+    assert ours.action_space == theirs.action_space
+    assert ours.observation_space == theirs.observation_space
+    assert ours.metadata["autoreset_mode"] == theirs.metadata["autoreset_mode"] == mode
+    assert data_equivalence(ours.reset(seed=7), theirs.reset(seed=7), exact=True)
+    rng = np.random.default_rng(2)
+    ended = 0
+    for step in range(130):
+        scale = 1.0 if step % 50 < 20 else 0.001  # bursts at full speed drive x into the guide's end
+        actions = (rng.uniform(-1, 1, size=(n, 1)) * scale).astype(np.float32)
+        mine, sync = ours.step(actions), theirs.step(actions)
+        assert data_equivalence(mine, sync, exact=True), f"step {step}"
+        ended += int(np.sum(mine[2] | mine[3]))
+        if mode == AutoresetMode.SAME_STEP and "final_info" in mine[4]:
+            assert set(mine[4]["final_info"]["termination_reason"][mine[4]["_final_info"]]) <= {
+                None,
+                "guide_stroke_limit",
+                "screw_stroke_limit",
+                "pad_bottomed_out",
+            }
+    assert ended >= 4  # several episodes ended and were reset
+    mask = np.array([False, True, False])
+    assert data_equivalence(
+        ours.reset(seed=[None, 3, None], options={"reset_mask": mask}),
+        theirs.reset(seed=[None, 3, None], options={"reset_mask": mask}),
+        exact=True,
+    )
+
+
+def test_autoreset_disabled_refuses_to_step_an_ended_rig():
+    env = MicroGravityLandingVectorEnv(2, autoreset_mode="Disabled", scenario=SHORT)
+    env.reset(seed=0)
+    for _ in range(40):
+        *_, truncated, _ = env.step(np.zeros((2, 1), dtype=np.float32))
+    assert truncated.all()
+    with pytest.raises(ValueError, match="reset_mask"):
+        env.step(np.zeros((2, 1), dtype=np.float32))
+    env.reset(options={"reset_mask": np.array([True, True])})
+    env.step(np.zeros((2, 1), dtype=np.float32))
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda env: env.step(np.zeros((3, 1))), "shape"),
+        (lambda env: env.step(np.full((2, 1), np.nan)), "finite"),
+        (lambda env: env.step(np.array([["a"], ["b"]])), "real-valued"),
+        (lambda env: env.reset(seed=[1]), "one seed per rig"),
+        (lambda env: env.reset(seed=-1), "seed"),
+        (lambda env: env.reset(options={"reset_mask": np.array([0, 1])}), "reset_mask"),
+    ],
+)
+def test_bad_input_is_named(call, match):
+    env = MicroGravityLandingVectorEnv(2)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=match):
+        call(env)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"num_envs": 0}, "num_envs"),
+        ({"num_envs": 2, "scenarios": [SHORT]}, "one Scenario per rig"),
+        ({"num_envs": 2, "autoreset_mode": "Sometimes"}, "autoreset_mode"),
+        ({"num_envs": 2, "render_mode": "rgb_array"}, "render"),
+        ({"num_envs": 2, "control_period_s": 0.33e-3}, "control_period_s"),
+    ],
+)
+def test_bad_settings_are_named(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        MicroGravityLandingVectorEnv(**kwargs)
+
+
+def test_rigs_run_their_own_scenarios_and_a_failed_reset_changes_nothing():
+    scenarios = [condition(1), condition(3)]
+    env = MicroGravityLandingVectorEnv(2, scenarios=scenarios)
+    obs, info = env.reset(seed=5)
+    for _ in range(5):
+        obs, _, _, _, info = env.step(np.zeros((2, 1), dtype=np.float32))
+    assert info["foot_height_m"][0] == pytest.approx(0.09, abs=1e-4)
+    assert info["foot_height_m"][1] == pytest.approx(0.055, abs=1e-4)
+    single = MicroGravityLandingEnv(scenario=condition(3))
+    single.reset(seed=6)
+    for _ in range(5):
+        expected = single.step(np.zeros(1, dtype=np.float32))[0]
+    np.testing.assert_array_equal(obs[1], expected)
+    before = env.core.observation.copy(), [rng.bit_generator.state for rng in env._rngs]
+    with pytest.raises(ValueError, match="seed"):
+        env.reset(seed=[1, -3])
+    assert np.array_equal(env.core.observation, before[0])
+    assert [rng.bit_generator.state for rng in env._rngs] == before[1]
+
+
+def test_vectorised_controllers_equal_one_controller_per_rig():
+    """A controller given n observations acts as n controllers given one each."""
+    rng = np.random.default_rng(3)
+    observations = rng.normal(scale=0.3, size=(40, 4, 10)).astype(np.float32)
+    for name in ("pid", "pid-dom", "feedforward", "residual-ppo"):
+        together = make_controller(name, 1e-3)
+        apart = [make_controller(name, 1e-3) for _ in range(4)]
+        for rows in observations:
+            batched = together(rows)
+            assert batched.shape == (4, 1)
+            for i, controller in enumerate(apart):
+                np.testing.assert_allclose(batched[i], controller(rows[i]), rtol=1e-6, err_msg=name)
+        together.reset(np.array([2]))
+        apart[2].reset()
+        np.testing.assert_allclose(together(observations[0])[2], apart[2](observations[0][2]), rtol=1e-6)
+
+
+def test_a_batch_of_episodes_is_the_single_env_episode_of_each():
+    """The comparison's batch (controllers, scenarios and randomised plants mixed in one batch)
+    records each case exactly as the single-env harness does."""
+    cases = [("pid", condition(2), 1000), ("feedforward", condition(3), 1001), ("residual-ppo", condition(1), 1002)]
+    runs = run_batch([Episode(*case) for case in cases], 1e-3, randomize=True, duration_s=0.6)
+    for (name, scenario, seed), (trajectory, params) in zip(cases, runs, strict=True):
+        env = MicroGravityLandingEnv(scenario=scenario, domain_randomization=True)
+        single = run_episode(env, make_controller(name, 1e-3), seed=seed, duration_s=0.6)
+        assert params == env.params
+        assert trajectory.scenario == env.active_scenario
+        for channel in ("x_m", "support_position_m", "pad_force_n", "command_m_s", "reward", "time_s"):
+            np.testing.assert_array_equal(getattr(trajectory, channel), getattr(single, channel), err_msg=channel)
+
+
+def test_sb3_vec_env_contract_and_ppo_trains_on_it():
+    """stable-baselines3's VecEnv contract, against make_vec_env's DummyVecEnv of single envs:
+    seeding, observations, rewards, dones, terminal observations and TimeLimit.truncated; then PPO
+    with VecNormalize learns on it."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+    from microg_env.learning.vec_env import BatchedVecEnv
+
+    kwargs = {"scenario": SHORT, "action_mode": "residual", "base_controller": "pid"}
+    ours = BatchedVecEnv.make(2, **kwargs)
+    theirs = make_vec_env("MicroGravityLanding-v1", n_envs=2, env_kwargs=kwargs)
+    assert isinstance(ours, VecEnv)
+    assert ours.num_envs == 2
+    assert ours.observation_space == theirs.observation_space
+    assert ours.action_space == theirs.action_space
+    ours.seed(11)
+    theirs.seed(11)
+    np.testing.assert_array_equal(ours.reset(), theirs.reset())
+    rng = np.random.default_rng(4)
+    dones = 0
+    for _ in range(90):
+        actions = rng.uniform(-1, 1, size=(2, 1)).astype(np.float32)
+        obs, rewards, done, infos = ours.step(actions)
+        obs_, rewards_, done_, infos_ = theirs.step(actions)
+        np.testing.assert_array_equal(obs, obs_)
+        np.testing.assert_array_equal(rewards, rewards_)
+        np.testing.assert_array_equal(done, done_)
+        for mine, sync in zip(infos, infos_, strict=True):
+            assert mine.keys() >= {k for k in sync if k != "episode"}
+            assert data_equivalence(mine.get("terminal_observation"), sync.get("terminal_observation"), exact=True)
+            assert mine.get("TimeLimit.truncated") == sync.get("TimeLimit.truncated")
+            assert mine["x_m"] == sync["x_m"]
+        dones += int(done.sum())
+    assert dones >= 4
+    assert ours.get_attr("num_envs") == [2, 2]
+    assert ours.env_is_wrapped(VecNormalize) == [False, False]
+    model = PPO("MlpPolicy", VecNormalize(ours), n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu")
+    model.learn(256)
+    assert model.num_timesteps == 256
