@@ -233,8 +233,7 @@ def test_a_run_writes_every_artifact_of_the_zoos_layout(ppo_run):
         "best_vecnormalize.pkl",
         "evaluations.json",
         "train.log",
-        "monitor/0.monitor.csv",
-        "monitor/1.monitor.csv",
+        "monitor/session-0.monitor.csv",
         "policy/policy.npz",
         "policy/policy.json",
         "policy/model.zip",
@@ -279,8 +278,10 @@ def test_resume_continues_the_step_count_the_statistics_and_the_log(ppo_run):
     assert "resumed at 256 steps" in log
     assert "384 steps in" in log
     assert latest["wall_s"] >= first["wall_s"]
-    monitor = (folder / "monitor" / "0.monitor.csv").read_text().splitlines()
-    assert sum(line.startswith("#") for line in monitor) == 1  # appended to, not replaced
+    first_session = (folder / "monitor" / "session-0.monitor.csv").read_text().splitlines()
+    second_session = (folder / "monitor" / "session-1.monitor.csv").read_text().splitlines()
+    assert first_session[0].startswith("#")  # the first session's file kept, not replaced
+    assert second_session[0].startswith("#")  # the resumed session writes its own
 
 
 def test_sac_resumes_with_its_replay_buffer(tmp_path):

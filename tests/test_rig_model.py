@@ -281,16 +281,17 @@ def test_episode_fields_equal_a_fresh_build():
     )
     changed = {path.split(".")[0] for path in EPISODE_PARAMETERS}
     assert changed <= {"lander", "pad", "qzs", "servo"}
+    held = np.zeros(2, dtype=bool)
     rig = build_rig(base, loads_kg=(0.05, 1.0))
-    rig.configure(drawn, (0.052, 0.97))
+    rig.write(rig.episode_fields(drawn, (0.052, 0.97), held, 0.0))
     fresh = build_rig(drawn, loads_kg=(0.052, 0.97))
-    fresh.configure(drawn, (0.052, 0.97))  # both with their weights held
+    fresh.write(fresh.episode_fields(drawn, (0.052, 0.97), held, 0.0))  # both with their weights held
     for name in ("body_mass", "body_inertia", "geom_solref", "qpos_spring", "tendon_stiffness", "tendon_lengthspring"):
         np.testing.assert_allclose(getattr(rig.model, name), getattr(fresh.model, name), rtol=1e-12, err_msg=name)
     for name in ("dof_damping", "actuator_biasprm", "actuator_dynprm", "actuator_gainprm", "jnt_stiffness"):
         np.testing.assert_allclose(getattr(rig.model, name), getattr(fresh.model, name), rtol=1e-12, err_msg=name)
     with pytest.raises(ValueError, match="support_mass_kg"):
-        rig.configure(replace(drawn, screw=replace(drawn.screw, support_mass_kg=50.0)))
+        rig.episode_fields(replace(drawn, screw=replace(drawn.screw, support_mass_kg=50.0)), (0.05, 1.0), held, 0.0)
 
 
 @pytest.mark.parametrize(

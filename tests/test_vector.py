@@ -1,6 +1,11 @@
 """The vector environment on mujoco.batch: the single env's episodes exactly, Gymnasium's vector
 contract (against SyncVectorEnv), stable-baselines3's VecEnv contract, batched comparisons."""
 
+import copy
+import pickle
+from dataclasses import replace
+from functools import partial
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -8,7 +13,7 @@ from gymnasium.utils.env_checker import data_equivalence
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
 import microg_env  # noqa: F401  (registers the environment)
-from microg_env.analysis.batch import Episode, run_batch
+from microg_env.analysis.batch import EpisodeSpec, run_batch
 from microg_env.analysis.evaluate import run_episode
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
@@ -61,22 +66,26 @@ def test_steps_exactly_as_a_sync_vector_env_of_single_envs_through_autoresets(mo
     observations, rewards, terminations (large actions hit the guide's end), truncations, infos
     and autoresets, in both autoreset modes."""
     n = 3
-    kwargs = {"scenario": SHORT, "domain_randomization": True}
-    ours = MicroGravityLandingVectorEnv(n, autoreset_mode=mode, **kwargs)
-    theirs = SyncVectorEnv([lambda: MicroGravityLandingEnv(**kwargs) for _ in range(n)], autoreset_mode=mode)
+    schedules = [replace(SHORT, duration_s=duration) for duration in (0.04, 0.023, 0.031)]  # rigs end apart
+    ours = MicroGravityLandingVectorEnv(n, autoreset_mode=mode, scenarios=schedules, domain_randomization=True)
+    theirs = SyncVectorEnv(
+        [partial(MicroGravityLandingEnv, scenario=s, domain_randomization=True) for s in schedules],
+        autoreset_mode=mode,
+    )
     assert ours.single_observation_space == theirs.single_observation_space
     assert ours.action_space == theirs.action_space
     assert ours.observation_space == theirs.observation_space
     assert ours.metadata["autoreset_mode"] == theirs.metadata["autoreset_mode"] == mode
     assert data_equivalence(ours.reset(seed=7), theirs.reset(seed=7), exact=True)
     rng = np.random.default_rng(2)
-    ended = 0
+    ended = partly = 0
     for step in range(130):
         scale = 1.0 if step % 50 < 20 else 0.001  # bursts at full speed drive x into the guide's end
         actions = (rng.uniform(-1, 1, size=(n, 1)) * scale).astype(np.float32)
         mine, sync = ours.step(actions), theirs.step(actions)
         assert data_equivalence(mine, sync, exact=True), f"step {step}"
         ended += int(np.sum(mine[2] | mine[3]))
+        partly += bool(0 < np.sum(mine[2] | mine[3]) < n)
         if mode == AutoresetMode.SAME_STEP and "final_info" in mine[4]:
             assert set(mine[4]["final_info"]["termination_reason"][mine[4]["_final_info"]]) <= {
                 None,
@@ -84,7 +93,8 @@ def test_steps_exactly_as_a_sync_vector_env_of_single_envs_through_autoresets(mo
                 "screw_stroke_limit",
                 "pad_bottomed_out",
             }
-    assert ended >= 4  # several episodes ended and were reset
+    assert ended >= 6  # several episodes ended and were reset
+    assert partly >= 3  # some while the other rigs went on
     mask = np.array([False, True, False])
     assert data_equivalence(
         ours.reset(seed=[None, 3, None], options={"reset_mask": mask}),
@@ -179,7 +189,7 @@ def test_a_batch_of_episodes_is_the_single_env_episode_of_each():
     """The comparison's batch (controllers, scenarios and randomised plants mixed in one batch)
     records each case exactly as the single-env harness does."""
     cases = [("pid", condition(2), 1000), ("feedforward", condition(3), 1001), ("residual-ppo", condition(1), 1002)]
-    runs = run_batch([Episode(*case) for case in cases], 1e-3, randomize=True, duration_s=0.6)
+    runs = run_batch([EpisodeSpec(*case) for case in cases], 1e-3, randomize=True, duration_s=0.6)
     for (name, scenario, seed), (trajectory, params) in zip(cases, runs, strict=True):
         env = MicroGravityLandingEnv(scenario=scenario, domain_randomization=True)
         single = run_episode(env, make_controller(name, 1e-3), seed=seed, duration_s=0.6)
@@ -224,9 +234,25 @@ def test_sb3_vec_env_contract_and_ppo_trains_on_it():
             assert mine.get("TimeLimit.truncated") == sync.get("TimeLimit.truncated")
             assert mine["x_m"] == sync["x_m"]
         dones += int(done.sum())
+        for mine, sync in zip(ours.reset_infos, theirs.reset_infos, strict=True):  # the new episodes' infos
+            assert {k: mine[k] for k in sync} == sync
     assert dones >= 4
     assert ours.get_attr("num_envs") == [2, 2]
     assert ours.env_is_wrapped(VecNormalize) == [False, False]
     model = PPO("MlpPolicy", VecNormalize(ours), n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu")
     model.learn(256)
     assert model.num_timesteps == 256
+
+
+@pytest.mark.parametrize("duplicate", [copy.deepcopy, lambda env: pickle.loads(pickle.dumps(env))])
+def test_a_copy_continues_exactly_as_the_original_under_changing_actions(duplicate):
+    """The copy's drive takes its own slew rates (the per-period field lives in the copy's model)."""
+    env = MicroGravityLandingEnv(condition=3)
+    env.reset(seed=0)
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        env.step(rng.uniform(-0.01, 0.01, size=1).astype(np.float32))
+    twin = duplicate(env)
+    for _ in range(300):
+        action = rng.uniform(-0.01, 0.01, size=1).astype(np.float32)
+        np.testing.assert_array_equal(env.step(action)[0], twin.step(action)[0])

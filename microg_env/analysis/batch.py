@@ -9,7 +9,7 @@ same channels a single-environment episode records. Rig i seeded s runs exactly 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +28,7 @@ PROGRESS_EVERY = 1000
 
 
 @dataclass(frozen=True)
-class Episode:
+class EpisodeSpec:
     """One episode of a batch: who drives which schedule, from which seed."""
 
     controller: str
@@ -36,29 +36,36 @@ class Episode:
     seed: int
 
 
-def run_batch(
-    episodes: Sequence[Episode],
+def run_batches(
+    episodes: Sequence[EpisodeSpec],
     control_period_s: float,
     randomize: bool = False,
     duration_s: float | None = None,
     nthread: int = 0,
     progress: Callable[[float], None] | None = None,
-) -> list[tuple[Trajectory, RigParams]]:
-    """The trajectory of each of ``episodes`` and the rig it ran on, :data:`MAX_BATCH` rigs at a time
-    on ``nthread`` threads, every imperfection on and, with ``randomize``, the domain randomisation's
-    plant drawn from the seed. ``duration_s`` caps each episode. ``progress(episodes)`` reports
-    finished fractions of episodes."""
-    runs: list = [None] * len(episodes)
-    by_schedule: dict[str, list[int]] = {}  # one batch per schedule: the single env's compiled model
+) -> Iterator[list[tuple[int, Trajectory, RigParams]]]:
+    """Run ``episodes``, every imperfection on and, with ``randomize``, the domain randomisation's
+    plant drawn from the seed; yield each batch's runs as it ends: (index in ``episodes``,
+    trajectory, the rig it ran on). A batch holds one schedule's episodes (the single env's compiled
+    model), at most :data:`MAX_BATCH` of them, stepped on ``nthread`` threads (0: every core).
+    ``duration_s`` caps each episode; ``progress(episodes)`` reports finished fractions of episodes."""
+    by_schedule: dict[str, list[int]] = {}
     for i, episode in enumerate(episodes):
         by_schedule.setdefault(repr(episode.scenario), []).append(i)
     for members in by_schedule.values():
         chunks = -(-len(members) // MAX_BATCH)  # as few batches as fit, of equal size
         for bounds in np.array_split(np.array(members), chunks):
             chunk = [episodes[i] for i in bounds]
-            done = _run_chunk(chunk, control_period_s, randomize, duration_s, nthread, progress)
-            for i, run in zip(bounds, done, strict=True):
-                runs[i] = run
+            runs = _run_chunk(chunk, control_period_s, randomize, duration_s, nthread, progress)
+            yield [(int(i), trajectory, params) for i, (trajectory, params) in zip(bounds, runs, strict=True)]
+
+
+def run_batch(episodes: Sequence[EpisodeSpec], *args, **kwargs) -> list[tuple[Trajectory, RigParams]]:
+    """Every run of :func:`run_batches` (same arguments), in the order of ``episodes``."""
+    runs: list = [None] * len(episodes)
+    for batch in run_batches(episodes, *args, **kwargs):
+        for i, trajectory, params in batch:
+            runs[i] = (trajectory, params)
     return runs
 
 

@@ -4,8 +4,10 @@ Each case (controller, scenario, seed) is one episode of ``MicroGravityLanding-v
 speed action, every imperfection on and, with ``randomize``, the domain randomisation's plant
 drawn from the seed, so every controller meets the same plant, noise and drift. The scenarios are
 held out of training (:func:`microg_env.scenarios.comparison_scenarios`) and the seeds start at
-:data:`TEST_SEED`, above every training and validation seed. Cases run in parallel processes
-(``workers``); each returns its metrics and, for the first seed, x around the touchdown.
+:data:`TEST_SEED`, above every training and validation seed. The cases run as rigs of
+``mujoco.batch`` batches (:func:`microg_env.analysis.batch.run_batches`, ``workers`` threads), each
+controller driving its rigs in one vectorised call; the ideal references run in ``workers``
+processes. Each case keeps its metrics and, for the first seed, x around the touchdown.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from microg_env import validate
-from microg_env.analysis.batch import Episode, run_batch
+from microg_env.analysis.batch import EpisodeSpec, run_batches
 from microg_env.analysis.evaluate import Summary, finite_mean, summarise
 from microg_env.analysis.metrics import RunMetrics, compute_metrics, contacts
 from microg_env.analysis.trajectory import Trajectory
@@ -187,7 +189,7 @@ def compare(
     workers: int = 1,
     progress: Callable[[int], None] | None = None,
 ) -> Comparison:
-    """Run every controller on every scenario and seed; ``progress(1)`` after each case."""
+    """Run every controller on every scenario and seed; ``progress(fraction)`` as episodes advance."""
     from microg_env.controllers.registry import check_controller_name
 
     known = comparison_scenarios()
@@ -211,20 +213,21 @@ def compare(
         control_period_s,
         duration_s,
     )
-    episodes = [Episode(case.controller, known[case.scenario], case.seed) for case in cases]
-    runs = run_batch(episodes, control_period_s, randomize, duration_s, workers, progress)
-    # One reference per plant, schedule and length: every controller meets the same plant on a seed.
-    jobs, keys = {}, []
-    for trajectory, params in runs:
-        length = float(trajectory.time_s[-1])
-        keys.append((repr(trajectory.scenario), repr(params), length))
-        jobs.setdefault(keys[-1], (trajectory.scenario, params, control_period_s, PHYSICS_STEP_S, length))
+    episodes = [EpisodeSpec(case.controller, known[case.scenario], case.seed) for case in cases]
+    results: list[CaseResult | None] = [None] * len(cases)
     with contextlib.ExitStack() as stack:
-        if workers == 1 or len(jobs) == 1:
-            references = dict(zip(jobs, map(_reference, jobs.values()), strict=True))
-        else:
-            pool = stack.enter_context(ProcessPoolExecutor(max_workers=min(workers, len(jobs))))
-            references = dict(zip(jobs, pool.map(_reference, jobs.values()), strict=True))
-    for case, (trajectory, _), key in zip(cases, runs, keys, strict=True):
-        comparison.results.append(_result(case, trajectory, references[key], keep_x=case.seed == seed_list[0]))
+        pool = stack.enter_context(ProcessPoolExecutor(max_workers=workers)) if workers > 1 else None
+        for batch in run_batches(episodes, control_period_s, randomize, duration_s, workers, progress):
+            # One reference per plant, schedule and length: every controller meets the same plant on a
+            # seed. Only the batch's trajectories and references are held, never every run's.
+            jobs, keys = {}, []
+            for _, trajectory, params in batch:
+                length = float(trajectory.time_s[-1])
+                keys.append((repr(trajectory.scenario), repr(params), length))
+                jobs.setdefault(keys[-1], (trajectory.scenario, params, control_period_s, PHYSICS_STEP_S, length))
+            computed = pool.map(_reference, jobs.values()) if pool is not None else map(_reference, jobs.values())
+            references = dict(zip(jobs, computed, strict=True))
+            for (i, trajectory, _), key in zip(batch, keys, strict=True):
+                results[i] = _result(cases[i], trajectory, references[key], keep_x=cases[i].seed == seed_list[0])
+    comparison.results.extend(results)
     return comparison

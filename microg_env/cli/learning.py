@@ -211,7 +211,7 @@ def add_commands(commands) -> None:
     compare.add_argument(
         "--workers",
         type=count(MAX_WORKERS),
-        default=os.cpu_count() or 1,
+        default=min(os.cpu_count() or 1, MAX_WORKERS),
         metavar="N",
         help="threads stepping the batch of rigs, processes for the ideal references (default: every core)",
     )

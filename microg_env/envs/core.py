@@ -192,7 +192,6 @@ class LandingCore:
         self._drift_dof = rig.screw_dof if params.balancer.placement == "frame_support" else rig.qzs_dof
         self._accel_adr = int(model.sensor_adr[model.sensor("lander_accel").id]) + 2
         self._force_adr = int(model.sensor_adr[model.sensor("pad_force").id])
-        self._slew = None if rig.ideal_drive else self.physics.field("actuator_dynprm")
         self.base = make_controller(self.base_controller, self.control_period_s) if action_mode == "residual" else None
 
         n = num_rigs
@@ -398,10 +397,10 @@ class LandingCore:
         # dcmotor's slew limiter moves the setpoint (the period's end) at the commanded rate.
         speed = command * rig.gear
         end = self.position_ref[index] + speed * (self.physics_step_s * self.frame_skip)
-        if self._slew is None:
+        if rig.ideal_drive:
             physics.ctrl[index, 0] = speed
-        else:
-            self._slew[index, rig.servo, SLEW_PARAMETER] = slew_rate(speed)
+        else:  # the field looked up each time: a copy of the environment has its own model
+            physics.field("actuator_dynprm")[index, rig.servo, SLEW_PARAMETER] = slew_rate(speed)
             physics.ctrl[index, 0] = end
             physics.ctrl[index, 1] = speed
         physics.step(ids, self.frame_skip)
@@ -453,7 +452,8 @@ class LandingCore:
         return (raw / SCALES).astype(np.float32)
 
     def info(self, ids: np.ndarray, codes: np.ndarray) -> dict[str, np.ndarray]:
-        """The true physical state of rigs ``ids`` (:data:`INFO_KEYS`), one array entry per rig."""
+        """The true physical state of rigs ``ids`` (:data:`INFO_KEYS`), one array entry per rig; new
+        arrays (``ids`` is an index array, never a slice), so they do not change as the rigs step."""
         physics, rig = self.physics, self.rig
         qpos, qvel, qacc = physics.qpos[ids], physics.qvel[ids], physics.qacc[ids]
         x = qpos[:, rig.qzs_qpos]
@@ -478,10 +478,8 @@ class LandingCore:
             "compensation_error": deviation / self.reference_weight_n[ids],
             "reward_x": x_reward(x, self.reward_scale_m, self.x_limit_m),
         }
-        # Copies: with every rig selected the indexing gives views of the live state.
-        return {key: np.array(value) for key, value in values.items()} | {
-            "termination_reason": np.array([TERMINATION_REASONS[c] for c in codes], dtype=object)
-        }
+        values["termination_reason"] = np.array([TERMINATION_REASONS[c] for c in codes], dtype=object)
+        return values
 
 
 def check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:

@@ -16,6 +16,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -79,7 +80,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
         self._seeds: list[int | None] = [None] * self.num_envs
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
-        self._started = False
+        self._started = np.zeros(self.num_envs, dtype=bool)  # rigs reset at least once
 
     @property
     def np_random_seed(self) -> tuple[int | None, ...]:
@@ -106,7 +107,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
             self._rngs, self._seeds = previous
             raise
         self._autoreset[ids] = False
-        self._started = True
+        self._started[ids] = True
         return self.core.observation.copy(), self._info(ids, np.zeros(ids.size, dtype=np.int64))
 
     def _seed_list(self, seed: int | Sequence[int | None] | None) -> list[int | None]:
@@ -121,10 +122,8 @@ class MicroGravityLandingVectorEnv(VectorEnv):
         return [None if s is None else validate.integer("seed", int(s), 0) for s in seeds]
 
     def step(self, actions):
-        if not self._started:
-            from gymnasium.error import ResetNeeded
-
-            raise ResetNeeded("call reset() before step()")
+        if not self._started.all():
+            raise ResetNeeded(f"reset rigs {self._all[~self._started].tolist()} before step()")
         values = check_actions(actions, (self.num_envs, 1))
         core, n = self.core, self.num_envs
         rewards = np.zeros(n)
@@ -151,12 +150,10 @@ class MicroGravityLandingVectorEnv(VectorEnv):
             final_obs = np.full(n, None, dtype=object)
             for i in done:
                 final_obs[i] = observations[i].copy()
-            final_info = {key: value.copy() for key, value in info.items()}
-            for key in INFO_KEYS:
-                final_info[f"_{key}"] = ended.copy()
+            final_info = self._info(done, codes[done])
             core.reset(done, self._rngs)
             observations[done] = core.observation[done]
-            after = self._info(done, np.zeros(done.size, dtype=np.int64))
+            after = core.info(done, np.zeros(done.size, dtype=np.int64))
             for key in INFO_KEYS:
                 info[key][done] = after[key]
             info |= {"final_obs": final_obs, "_final_obs": ended.copy(), "final_info": final_info}
@@ -166,7 +163,8 @@ class MicroGravityLandingVectorEnv(VectorEnv):
         return observations, rewards, terminated, truncated, info
 
     def _info(self, ids: np.ndarray, codes: np.ndarray) -> dict[str, np.ndarray]:
-        """Gymnasium's vector info: every key an array over the rigs ``ids``, with its ``_key`` mask."""
+        """Gymnasium's vector info of the rigs ``ids``: every key an array over all rigs (0 or None
+        for the others) with its ``_key`` mask."""
         values = self.core.info(ids, codes)
         info: dict[str, np.ndarray] = {}
         mask = np.zeros(self.num_envs, dtype=bool)

@@ -13,7 +13,7 @@ A run lives in ``<log folder>/<algo>/<env id>_<n>/``:
 | ``evaluations.json`` | every evaluation: steps, wall time, cost, the project's metrics |
 | ``train.log`` | progress and evaluations with wall-clock time; the total at the end |
 | ``tb/`` | TensorBoard events (the algorithm's and ``eval/``) |
-| ``monitor/`` | stable-baselines3's monitor files (episode return, length, time) |
+| ``monitor/`` | stable-baselines3's monitor file of each session (episode return, length, time) |
 
 Evaluation uses the project's metrics, not only the return: every ``eval_freq`` steps the
 deterministic policy runs, as a :class:`~microg_env.controllers.policy.PolicyController` in the
@@ -222,17 +222,17 @@ class _Run:
 
     # -- building --------------------------------------------------------------------------
 
-    def _environments(self, seed: int, resuming: bool):
+    def _environments(self, resuming: bool):
         from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
         from microg_env.learning.vec_env import BatchedVecEnv
 
-        # Every rig on one mujoco.batch; one monitor file per session (a resumed one starts its own).
+        # Every rig on one mujoco.batch; one monitor file per session, session-<n>.monitor.csv.
         venv = BatchedVecEnv.make(self.params.n_envs, **self.params.env_kwargs)
-        venv.seed(seed)
-        (self.folder / "monitor").mkdir(exist_ok=True)
-        monitor = self.folder / "monitor" / f"from-{self.state['timesteps']}"
-        venv = VecMonitor(venv, filename=str(monitor), info_keywords=("termination_reason",))
+        folder = self.folder / "monitor"
+        folder.mkdir(exist_ok=True)
+        session = len(list(folder.glob("session-*.monitor.csv")))
+        venv = VecMonitor(venv, filename=str(folder / f"session-{session}"), info_keywords=("termination_reason",))
         if self.params.normalize is None:
             return venv
         if resuming:
@@ -272,8 +272,10 @@ class _Run:
         self.state["sessions"] += 1
         # Envs are seeded seed..seed+n-1; a resumed session draws fresh seeds from (seed, steps run),
         # far from the validation (500+) and test (1000+) seeds.
-        venv = self._environments(session_seed(self.settings.seed, self.state["timesteps"]), resuming)
+        env_seed = session_seed(self.settings.seed, self.state["timesteps"])
+        venv = self._environments(resuming)
         model = self._model(venv, resuming)
+        venv.seed(env_seed)  # after the model, whose set_random_seed would seed the envs with its own seed
         target = self.params.n_timesteps
         command = (self.state.get("resume_commands") or [""])[-1] if resuming else self.settings.command
         self.log(

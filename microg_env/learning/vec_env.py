@@ -50,9 +50,10 @@ class BatchedVecEnv(VecEnv):
         observations, rewards, terminated, truncated, info = self.env.step(self._actions)
         infos = _per_rig(info)
         cut = (truncated & ~terminated).tolist()
-        if "final_info" in info:
+        if "final_info" in info:  # an ended rig's info is its last step's; the reset's goes to reset_infos
             final = _per_rig(info["final_info"])
             for i in np.flatnonzero(info["_final_obs"]):
+                self.reset_infos[i] = infos[i]
                 infos[i] = final[i] | {"terminal_observation": info["final_obs"][i]}
         for rig_info, was_cut in zip(infos, cut, strict=True):
             rig_info["TimeLimit.truncated"] = was_cut
@@ -68,8 +69,9 @@ class BatchedVecEnv(VecEnv):
         setattr(self.env, attr_name, value)  # the rigs share one environment object
 
     def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list[Any]:
-        method = getattr(self.env, method_name)
-        return [method(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
+        """Calls the method once, on the one environment all the rigs share."""
+        result = getattr(self.env, method_name)(*method_args, **method_kwargs)
+        return [result for _ in self._get_indices(indices)]
 
     def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
         return [False for _ in self._get_indices(indices)]

@@ -287,10 +287,6 @@ class Rig:
         """Height of the foot's sole above the undeformed pad, m (negative: deforming the pad)."""
         return float(data.qpos[self.screw_qpos] + data.qpos[self.qzs_qpos])
 
-    def lander_velocity(self, data: mujoco.MjData) -> float:
-        """Vertical velocity of the lander, m/s (up positive)."""
-        return float(data.qvel[self.screw_dof] + data.qvel[self.qzs_dof])
-
     def reset(self, data: mujoco.MjData, height_m: float) -> None:
         """Balanced rest: foot ``height_m`` above the pad, x = 0, servo holding, no weight placed."""
         self.place_loads(np.zeros(len(self.loads_kg), dtype=bool))
