@@ -60,6 +60,16 @@ def test_each_rig_runs_exactly_the_single_envs_episode(kwargs):
     assert np.ptp(batched["x"][-1]) > 0  # the rigs differ (noise, drift, plants): the test can fail
 
 
+def test_a_vector_env_of_one_rig_runs_on_the_batch_and_equals_the_single_env():
+    actions = np.random.default_rng(6).uniform(-0.02, 0.02, size=(100, 1, 1)).astype(np.float32)
+    vector = MicroGravityLandingVectorEnv(1, condition=3)
+    assert type(vector.core.physics).__name__ == "BatchPhysics"
+    batched = _rollout(vector, actions, 9)
+    single = _rollout(MicroGravityLandingEnv(condition=3), actions[:, 0], 9)
+    for key, values in single.items():
+        np.testing.assert_array_equal(batched[key][:, 0], values, err_msg=key)
+
+
 @pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
 def test_steps_exactly_as_a_sync_vector_env_of_single_envs_through_autoresets(mode):
     """Gymnasium's vector contract, checked against its own SyncVectorEnv: spaces, seeding,

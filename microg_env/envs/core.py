@@ -178,9 +178,7 @@ class LandingCore:
         for each in nominal[1:]:
             self.rig.check_episode_params(each)  # one compiled model for every rig's schedule
         self.nominal_params = nominal[0]
-        self.physics = (
-            ModelPhysics(self.rig.model) if num_rigs == 1 else BatchPhysics(self.rig.model, num_rigs, nthread)
-        )
+        self.physics = BatchPhysics(self.rig.model, num_rigs, nthread) if batched else ModelPhysics(self.rig.model)
         self.sensors = SensorModel(self.nominal_params, self.control_period_s, self.imperfections.sensor_noise)
         self._noise = NoiseDraws(num_rigs)
         params = self.nominal_params
@@ -218,6 +216,7 @@ class LandingCore:
         self.gravity = np.full(n, params.gravity_m_s2)
         self.last_readings = np.zeros((2, n))  # ruler and encoder at the previous period
         self.fresh = np.ones(n, dtype=bool)  # no previous reading yet: rates are 0
+        self.reward_x = np.zeros(n)  # the reward of the last control period
 
     # -- episodes ------------------------------------------------------------------------------
 
@@ -317,6 +316,7 @@ class LandingCore:
             self.base.reset(ids)
         self._place_due_loads(ids, self.trim_height_m[ids])
         physics.forward(ids)
+        self.reward_x[ids] = x_reward(physics.qpos[ids, rig.qzs_qpos], self.reward_scale_m, self.x_limit_m)
         self.observation[ids] = self.sense(ids, ids, rngs)
 
     def _place_due_loads(self, ids: np.ndarray, height_m: np.ndarray) -> None:
@@ -355,7 +355,7 @@ class LandingCore:
         periods = np.zeros(ids.size, dtype=np.int64)
         codes = np.zeros(ids.size, dtype=np.int64)
         truncated = np.zeros(ids.size, dtype=bool)
-        running = np.arange(ids.size)
+        running = slice(None)  # positions in ids of the rigs still running (every one at first)
         for _ in range(self.decision_period):
             rigs = ids[running]
             index = self._index(rigs)
@@ -369,14 +369,18 @@ class LandingCore:
             code = self._control_period(index, rigs, command)
             self.previous_action[index] = actions[running]
             self.observation[index] = self.sense(index, rigs, rngs)
-            total[running] += x_reward(self.physics.qpos[index, self.rig.qzs_qpos], self.reward_scale_m, self.x_limit_m)
+            reward = x_reward(self.physics.qpos[index, self.rig.qzs_qpos], self.reward_scale_m, self.x_limit_m)
+            self.reward_x[index] = reward
+            total[running] += reward
             periods[running] += 1
             codes[running] = code
             ended = (code == 0) & (self.steps[index] >= self.max_steps[index])
             truncated[running] = ended
-            running = running[(code == 0) & ~ended]
-            if not running.size:
+            going = (code == 0) & ~ended
+            if not going.any():
                 break
+            if not going.all():
+                running = np.arange(ids.size)[running][going]
         return total / periods, codes, truncated, periods
 
     def _index(self, ids: np.ndarray) -> np.ndarray | slice:
@@ -476,7 +480,7 @@ class LandingCore:
             "setpoint_m": self.base.setpoint_m[ids] if self.base is not None else np.zeros(ids.size),
             "servo_torque_n_m": physics.actuator_force[ids, rig.servo],
             "compensation_error": deviation / self.reference_weight_n[ids],
-            "reward_x": x_reward(x, self.reward_scale_m, self.x_limit_m),
+            "reward_x": self.reward_x[ids],
         }
         values["termination_reason"] = np.array([TERMINATION_REASONS[c] for c in codes], dtype=object)
         return values
@@ -491,10 +495,9 @@ def check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
     if array.shape != shape:
         raise ValueError(f"action must have shape {shape}, got shape {array.shape}")
     values = array.reshape(-1).astype(np.float64)
-    bad = ~np.isfinite(values)
-    if bad.any():
-        raise ValueError(f"action must be finite, got {float(values[bad][0])!r}")
-    return np.clip(values, -1.0, 1.0)  # out-of-range actions are clipped to the drive's range
+    if not np.isfinite(values).all():
+        raise ValueError(f"action must be finite, got {float(values[~np.isfinite(values)][0])!r}")
+    return np.minimum(np.maximum(values, -1.0), 1.0)  # out-of-range actions are clipped to the drive's range
 
 
 def _sampler(value: ScenarioSampler | str | Mapping | None) -> ScenarioSampler | None:
