@@ -64,7 +64,7 @@ class VectorController:
 
     def grow(self, count: int) -> None:
         """Make room for rigs 0 to ``count`` - 1 (new rigs start an episode)."""
-        size = next(iter(vars(self)[name].size for name in self.STATE), count)
+        size = self.size
         if count > size:
             for name, start in self.STATE.items():
                 setattr(self, name, np.concatenate([getattr(self, name), np.full(count - size, start)]))
@@ -87,7 +87,12 @@ class VectorController:
 
     def rigs(self, index: np.ndarray | slice) -> np.ndarray:
         """The rig numbers ``index`` selects."""
-        return np.arange(next(iter(vars(self)[name].size for name in self.STATE)))[index]
+        return np.arange(self.size)[index]
+
+    @property
+    def size(self) -> int:
+        """How many rigs the state arrays hold."""
+        return getattr(self, next(iter(self.STATE))).size
 
 
 @dataclass(frozen=True)
