@@ -51,7 +51,11 @@ class Imperfections:
     @classmethod
     def none(cls) -> Imperfections:
         """An ideal rig: every imperfection off."""
-        return cls(**{f.name: False for f in fields(cls)})
+        return cls(**dict.fromkeys(IMPERFECTION_NAMES, False))
+
+
+#: The imperfections by name (the fields of :class:`Imperfections`).
+IMPERFECTION_NAMES = tuple(f.name for f in fields(Imperfections))
 
 
 def apply_imperfections(params: RigParams, imperfections: Imperfections) -> RigParams:

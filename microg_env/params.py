@@ -107,6 +107,7 @@ RANGES: dict[str, tuple[float, float, str]] = {
     "SensorParams.ruler_resolution_m": (1e-12, 1e-3, "m"),
     "SensorParams.ruler_noise_m": (0.0, 1e-3, "m"),
     "SensorParams.accelerometer_noise_density_m_s2_per_sqrt_hz": (0.0, 1.0, "m/s^2/sqrt(Hz)"),
+    "SensorParams.accelerometer_bias_m_s2": (-1.0, 1.0, "m/s^2"),
     "SensorParams.force_noise_n": (0.0, 1e3, "N"),
     "BalancerDriftParams.gas_temperature_k": (1.0, 1e3, "K"),
     "BalancerDriftParams.max_temperature_rate_k_per_s": (0.0, 0.1, "K/s"),
@@ -365,6 +366,10 @@ class SensorParams:
     encoder_counts_per_rev: int = 2**24
     #: Assumption: a quartz-flex servo accelerometer, 5 ug/sqrt(Hz) (1.1 mm/s^2 RMS per 1 kHz sample).
     accelerometer_noise_density_m_s2_per_sqrt_hz: float = 5.0e-6 * GRAVITY_M_S2
+    #: Assumption: the accelerometer's bias after calibration, m/s^2 (up positive). 0 here; a
+    #: quartz-flex unit keeps tens of ug after a field calibration (4e-4 m/s^2 is 41 ug), which
+    #: reads straight into a descent measured by the accelerometer (docs/studies/fifty-gram-floor).
+    accelerometer_bias_m_s2: float = 0.0
     #: Assumption: 0.1 N RMS from the pad's force sensor (0.02 % of a 500 N range).
     force_noise_n: float = 0.1
 
@@ -424,15 +429,19 @@ def parameter_paths(params: RigParams | None = None) -> dict[str, object]:
 
 
 def with_overrides(params: RigParams, overrides: Mapping[str, object]) -> RigParams:
-    """``params`` with the values at the given dotted paths replaced (validated as usual)."""
+    """``params`` with the values at the given dotted paths replaced (validated as usual; the
+    values of one part are replaced together, so related limits may move together)."""
     validate.instance("overrides", overrides, Mapping)
     known = parameter_paths(params)
+    parts: dict[str, dict[str, object]] = {}
+    top: dict[str, object] = {}
     for path, value in overrides.items():
         if path not in known:
             raise ValueError(f"unknown parameter {path!r}; known: {', '.join(sorted(known))}")
         part, _, name = path.partition(".")
         if name:
-            params = dataclasses.replace(params, **{part: dataclasses.replace(getattr(params, part), **{name: value})})
+            parts.setdefault(part, {})[name] = value
         else:
-            params = dataclasses.replace(params, **{part: value})
-    return params
+            top[part] = value
+    changes = {part: dataclasses.replace(getattr(params, part), **values) for part, values in parts.items()}
+    return dataclasses.replace(params, **changes, **top)

@@ -199,10 +199,11 @@ def test_a_batch_of_episodes_is_the_single_env_episode_of_each():
     """The comparison's batch (controllers, scenarios and randomised plants mixed in one batch)
     records each case exactly as the single-env harness does."""
     cases = [("pid", condition(2), 1000), ("feedforward", condition(3), 1001), ("residual-ppo", condition(1), 1002)]
-    runs = run_batch([EpisodeSpec(*case) for case in cases], 1e-3, randomize=True, duration_s=0.6)
+    cases = [(name, replace(scenario, duration_s=0.6), seed) for name, scenario, seed in cases]
+    runs = run_batch([EpisodeSpec(*case) for case in cases], {"domain_randomization": True})
     for (name, scenario, seed), (trajectory, params) in zip(cases, runs, strict=True):
         env = MicroGravityLandingEnv(scenario=scenario, domain_randomization=True)
-        single = run_episode(env, make_controller(name, 1e-3), seed=seed, duration_s=0.6)
+        single = run_episode(env, make_controller(name, 1e-3), seed=seed)
         assert params == env.params
         assert trajectory.scenario == env.active_scenario
         for channel in ("x_m", "support_position_m", "pad_force_n", "command_m_s", "reward", "time_s"):

@@ -9,8 +9,9 @@ same channels a single-environment episode records. Rig i seeded s runs exactly 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -29,26 +30,29 @@ PROGRESS_EVERY = 1000
 
 @dataclass(frozen=True)
 class EpisodeSpec:
-    """One episode of a batch: who drives which schedule, from which seed."""
+    """One episode of a batch: who drives (a controller's name and the PID gains it replaces,
+    as sorted (field, value) pairs), which schedule, from which seed."""
 
     controller: str
     scenario: Scenario
     seed: int
+    gains: tuple[tuple[str, float], ...] = ()
 
 
 def run_batches(
     episodes: Sequence[EpisodeSpec],
-    control_period_s: float,
-    randomize: bool = False,
-    duration_s: float | None = None,
+    settings: Mapping[str, Any] | None = None,
     nthread: int = 0,
     progress: Callable[[float], None] | None = None,
 ) -> Iterator[list[tuple[int, Trajectory, RigParams]]]:
-    """Run ``episodes``, every imperfection on and, with ``randomize``, the domain randomisation's
-    plant drawn from the seed; yield each batch's runs as it ends: (index in ``episodes``,
-    trajectory, the rig it ran on). A batch holds one schedule's episodes (the single env's compiled
-    model), at most :data:`MAX_BATCH` of them, stepped on ``nthread`` threads (0: every core).
-    ``duration_s`` caps each episode; ``progress(episodes)`` reports finished fractions of episodes."""
+    """Run ``episodes`` on the rig of ``settings`` (``MicroGravityLandingEnv``'s keyword arguments
+    but the scenario: control period, physics step, imperfections, domain randomisation, params);
+    with a domain randomisation each rig's plant is drawn from its seed. Yield each batch's runs as
+    it ends: (index in ``episodes``, trajectory, the rig it ran on). A batch holds one schedule's
+    episodes (the single env's compiled model), at most :data:`MAX_BATCH` of them, stepped on
+    ``nthread`` threads (0: every core); ``progress(episodes)`` reports finished fractions of
+    episodes. A model-based controller assumes the nominal rig of ``settings``."""
+    settings = dict(settings or {})
     by_schedule: dict[str, list[int]] = {}
     for i, episode in enumerate(episodes):
         by_schedule.setdefault(repr(episode.scenario), []).append(i)
@@ -56,7 +60,7 @@ def run_batches(
         chunks = -(-len(members) // MAX_BATCH)  # as few batches as fit, of equal size
         for bounds in np.array_split(np.array(members), chunks):
             chunk = [episodes[i] for i in bounds]
-            runs = _run_chunk(chunk, control_period_s, randomize, duration_s, nthread, progress)
+            runs = _run_chunk(chunk, settings, nthread, progress)
             yield [(int(i), trajectory, params) for i, (trajectory, params) in zip(bounds, runs, strict=True)]
 
 
@@ -69,29 +73,18 @@ def run_batch(episodes: Sequence[EpisodeSpec], *args, **kwargs) -> list[tuple[Tr
     return runs
 
 
-def _run_chunk(
-    episodes, control_period_s, randomize, duration_s, nthread, progress
-) -> list[tuple[Trajectory, RigParams]]:
+def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, RigParams]]:
     from microg_env.controllers.registry import make_controller
 
     n = len(episodes)
-    core = LandingCore(
-        n,
-        scenarios=[e.scenario for e in episodes],
-        control_period_s=control_period_s,
-        domain_randomization=randomize or None,
-        batched=True,
-        nthread=nthread,
-    )
+    core = LandingCore(n, scenarios=[e.scenario for e in episodes], batched=True, nthread=nthread, **settings)
     rngs = [seeding.np_random(e.seed)[0] for e in episodes]
     every = np.arange(n)
     core.reset(every, rngs)
-    if duration_s is not None:
-        core.max_steps[:] = np.minimum(core.max_steps, round(duration_s / control_period_s))
     groups = []  # (controller, its rigs)
-    for name in dict.fromkeys(e.controller for e in episodes):
-        rigs = np.array([i for i, e in enumerate(episodes) if e.controller == name])
-        controller = make_controller(name, control_period_s)
+    for who in dict.fromkeys((e.controller, e.gains) for e in episodes):
+        rigs = np.array([i for i, e in enumerate(episodes) if (e.controller, e.gains) == who])
+        controller = make_controller(who[0], core.control_period_s, core.base_params, dict(who[1]))
         controller.reset(np.arange(rigs.size))
         groups.append((controller, rigs))
     channels = CHANNELS[:-1]  # every channel but the reward comes from info

@@ -1,33 +1,30 @@
 """Controllers compared on the same physics: every controller on the same scenarios and seeds.
 
-Each case (controller, scenario, seed) is one episode of ``MicroGravityLanding-v1`` with the
-speed action, every imperfection on and, with ``randomize``, the domain randomisation's plant
-drawn from the seed, so every controller meets the same plant, noise and drift. The scenarios are
-held out of training (:func:`microg_env.scenarios.comparison_scenarios`) and the seeds start at
-:data:`TEST_SEED`, above every training and validation seed. The cases run as rigs of
-``mujoco.batch`` batches (:func:`microg_env.analysis.batch.run_batches`, ``workers`` threads), each
-controller driving its rigs in one vectorised call; the ideal references run in ``workers``
-processes. Each case keeps its metrics and, for the first seed, x around the touchdown.
+Each case (controller, scenario, seed) is one run (:class:`~microg_env.experiments.spec.RunSpec`)
+of ``MicroGravityLanding-v1`` with the speed action, every imperfection on and, with
+``randomize``, the domain randomisation's plant drawn from the seed, so every controller meets
+the same plant, noise and drift. The scenarios are held out of training
+(:func:`microg_env.scenarios.comparison_scenarios`) and the seeds start at :data:`TEST_SEED`,
+above every training and validation seed. The cases run through
+:func:`microg_env.experiments.runner.run_many`: as rigs of ``mujoco.batch`` batches (``workers``
+threads), each controller driving its rigs in one vectorised call, the ideal references in
+``workers`` processes. Each case keeps its metrics and, for the first seed, x around the touchdown.
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from microg_env import validate
-from microg_env.analysis.batch import EpisodeSpec, run_batches
 from microg_env.analysis.evaluate import Summary, finite_mean, summarise
-from microg_env.analysis.metrics import RunMetrics, compute_metrics, contacts
+from microg_env.analysis.metrics import RunMetrics, contacts
 from microg_env.analysis.trajectory import Trajectory
-from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
+from microg_env.params import CONTROL_PERIOD_S
 from microg_env.scenarios import Scenario, comparison_scenarios
-from microg_env.sim.reference import simulate_reference
 
 #: First test seed: training seeds its environments from 0 (``n_envs`` of them), validation from 500.
 TEST_SEED = 1000
@@ -88,14 +85,7 @@ class CaseResult:
         return self.metrics.termination_reason is not None
 
 
-def _reference(job: tuple[Scenario, RigParams, float, float, float]) -> Trajectory:
-    """The ideal-microgravity landing of one plant and schedule (a process pool's task)."""
-    scenario, params, control_period_s, physics_step_s, duration_s = job
-    return simulate_reference(scenario, params, control_period_s, physics_step_s, duration_s)
-
-
-def _result(case: Case, trajectory: Trajectory, reference: Trajectory, keep_x: bool) -> CaseResult:
-    metrics = compute_metrics(trajectory, reference)
+def _result(case: Case, metrics: RunMetrics, trajectory: Trajectory, keep_x: bool) -> CaseResult:
     window = None
     found = contacts(trajectory)
     if keep_x and found:
@@ -213,21 +203,29 @@ def compare(
         control_period_s,
         duration_s,
     )
-    episodes = [EpisodeSpec(case.controller, known[case.scenario], case.seed) for case in cases]
+    from microg_env.experiments.runner import run_many
+    from microg_env.experiments.spec import RunSpec
+
+    specs = []
+    for case in cases:
+        length = (
+            known[case.scenario].duration_s if duration_s is None else min(known[case.scenario].duration_s, duration_s)
+        )
+        specs.append(
+            RunSpec(
+                case.scenario,
+                case.controller,
+                case.seed,
+                randomize=randomize,
+                control_period_us=control_period_s * 1e6,
+                duration_s=length,
+            )
+        )
     results: list[CaseResult | None] = [None] * len(cases)
-    with contextlib.ExitStack() as stack:
-        pool = stack.enter_context(ProcessPoolExecutor(max_workers=workers)) if workers > 1 else None
-        for batch in run_batches(episodes, control_period_s, randomize, duration_s, workers, progress):
-            # One reference per plant, schedule and length: every controller meets the same plant on a
-            # seed. Only the batch's trajectories and references are held, never every run's.
-            jobs, keys = {}, []
-            for _, trajectory, params in batch:
-                length = float(trajectory.time_s[-1])
-                keys.append((repr(trajectory.scenario), repr(params), length))
-                jobs.setdefault(keys[-1], (trajectory.scenario, params, control_period_s, PHYSICS_STEP_S, length))
-            computed = pool.map(_reference, jobs.values()) if pool is not None else map(_reference, jobs.values())
-            references = dict(zip(jobs, computed, strict=True))
-            for (i, trajectory, _), key in zip(batch, keys, strict=True):
-                results[i] = _result(cases[i], trajectory, references[key], keep_x=cases[i].seed == seed_list[0])
+    for batch in run_many(specs, workers, progress, keep_trajectories=True):
+        for i, result in batch:  # only the batch's trajectories are held, never every run's
+            if not result.ok:
+                raise RuntimeError(f"{cases[i]}: {result.error}")
+            results[i] = _result(cases[i], result.metrics, result.trajectory, keep_x=cases[i].seed == seed_list[0])
     comparison.results.extend(results)
     return comparison

@@ -94,9 +94,10 @@ def run_with_metrics(
     seed: int | None = None,
     duration_s: float | None = None,
     on_step: Callable[[gym.Env, dict], None] | None = None,
+    on_progress: Callable[[int], None] | None = None,
 ) -> tuple[Trajectory, Trajectory, RunMetrics]:
     """One episode, its ideal-microgravity reference (same lander, pad and loads) and its metrics."""
-    trajectory = run_episode(env, controller, seed, duration_s, on_step=on_step)
+    trajectory = run_episode(env, controller, seed, duration_s, on_progress=on_progress, on_step=on_step)
     reference = reference_for(env, trajectory)
     return trajectory, reference, compute_metrics(trajectory, reference)
 

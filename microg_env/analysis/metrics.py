@@ -114,6 +114,9 @@ class RunMetrics:
     compensation_error_pct: list[float]
     residual_gravity_g: list[float]
     microgravity_level_g: list[float]
+    #: The same descents as the lander's accelerometer reports them: its mean reading over each
+    #: stage's fit window (bias and noise included; how an experiment without a position fit sees it).
+    accelerometer_descent_accel_m_s2: list[float]
     flexible_unit_excursion_free_fall_m: float
     flexible_unit_excursion_collision_m: float
     support_force_variation_n: float
@@ -161,7 +164,13 @@ class LandingMetrics:
 
 _CONTACT_METRICS = ("max_deformation_m", "collision_accel_m_s2", "contact_time_s", "restitution")
 #: The per-stage metrics, all from the stage's descent fit.
-_PER_STAGE = ("descent_accel_m_s2", "compensation_error_pct", "residual_gravity_g", "microgravity_level_g")
+_PER_STAGE = (
+    "descent_accel_m_s2",
+    "compensation_error_pct",
+    "residual_gravity_g",
+    "microgravity_level_g",
+    "accelerometer_descent_accel_m_s2",
+)
 
 
 def landing(traj: Trajectory) -> LandingMetrics:
@@ -207,7 +216,7 @@ def compute_metrics(traj: Trajectory, reference: Trajectory) -> RunMetrics:
     found = contacts(traj)
     touchdown = found[0].start if found else None
     ideal = list(traj.scenario.ideal_descent_m_s2(traj.lander_mass_kg, g))
-    measured = []
+    measured, sensed = [], []
     windows = stage_windows(traj, touchdown)
     for i, window in enumerate(windows):
         reason = None
@@ -228,8 +237,10 @@ def compute_metrics(traj: Trajectory, reference: Trajectory) -> RunMetrics:
                 )
         if reason is None:
             measured.append(descent_acceleration(traj, window))
+            sensed.append(float(np.mean(traj.accelerometer_m_s2[window[0] : window[1]])))
             continue
         measured.append(math.nan)
+        sensed.append(math.nan)
         for name in _PER_STAGE:
             unavailable[f"{name}[{i}]"] = reason
     rig, ideal_landing = landing(traj), landing(reference)
@@ -254,6 +265,7 @@ def compute_metrics(traj: Trajectory, reference: Trajectory) -> RunMetrics:
         compensation_error_pct=[100.0 * (a / a0 - 1.0) for a, a0 in zip(measured, ideal, strict=True)],
         residual_gravity_g=[(a - a0) / g for a, a0 in zip(measured, ideal, strict=True)],
         microgravity_level_g=[abs(a) / g for a in measured],
+        accelerometer_descent_accel_m_s2=sensed,
         flexible_unit_excursion_free_fall_m=_max_abs(traj.x_m[free_fall]),
         flexible_unit_excursion_collision_m=collision,
         support_force_variation_n=_max_abs(traj.support_force_deviation_n),

@@ -14,6 +14,7 @@ CHANNELS = (
     "foot_height_m",
     "lander_velocity_m_s",
     "lander_accel_m_s2",
+    "accelerometer_m_s2",
     "x_m",
     "support_position_m",
     "support_velocity_m_s",
@@ -38,6 +39,7 @@ class Trajectory:
     foot_height_m: np.ndarray
     lander_velocity_m_s: np.ndarray
     lander_accel_m_s2: np.ndarray
+    accelerometer_m_s2: np.ndarray  # what the lander's accelerometer reads (bias and noise), g removed
     x_m: np.ndarray
     support_position_m: np.ndarray
     support_velocity_m_s: np.ndarray

@@ -14,7 +14,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from microg_env.cli import learning, rig
+from microg_env.cli import campaign, learning, rig
 from microg_env.cli.common import Parser, UsageError, one_line
 
 __all__ = ["UsageError", "build_parser", "main"]
@@ -25,6 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     rig.add_commands(commands)
     learning.add_commands(commands)
+    campaign.add_commands(commands)
     return parser
 
 

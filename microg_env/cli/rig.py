@@ -23,6 +23,7 @@ from microg_env.cli.common import (
     seed_number,
 )
 from microg_env.controllers.registry import CONTROLLER_NAMES
+from microg_env.imperfections import IMPERFECTION_NAMES
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, LOAD_CAPACITY_KG
 from microg_env.scenarios import MIN_HEIGHT_M, MIN_LOAD_KG, LoadStep
 
@@ -104,17 +105,30 @@ def _cmd_export_mjcf(args: argparse.Namespace) -> int:
     return 0
 
 
-def _scenario(args: argparse.Namespace):
-    from microg_env.scenarios import condition
+def _run_spec(args: argparse.Namespace):
+    """The run ``microg run``'s options describe."""
+    from microg_env.experiments.spec import RunSpec
+    from microg_env.params import RigParams
 
-    scenario = condition(args.condition)
-    if args.load:
-        scenario = replace(scenario, name="custom", loads=tuple(args.load))
-    if args.height is not None:
-        scenario = replace(scenario, name="custom", descent_height_m=args.height * 1e-3)
-    if args.duration is not None:
-        scenario = replace(scenario, duration_s=args.duration)
-    return scenario
+    pad, paper = pad_from_options(args), RigParams().pad
+    overrides = {
+        f"pad.{name}": getattr(pad, name)
+        for name in ("stiffness_n_per_m", "damping_n_s_per_m")
+        if getattr(pad, name) != getattr(paper, name)
+    }
+    return RunSpec(
+        scenario=f"condition-{args.condition}",
+        controller=args.controller,
+        seed=args.seed,
+        overrides=overrides,
+        imperfections=dict.fromkeys(IMPERFECTION_NAMES, False) if args.ideal else {},
+        randomize=args.randomize,
+        control_period_us=args.control_period,
+        physics_step_us=args.physics_step,
+        duration_s=args.duration,
+        loads=tuple((load.mass_kg, load.height_m) for load in args.load) or None,
+        descent_height_m=None if args.height is None else args.height * 1e-3,
+    )
 
 
 def _format_row(label: str, values: list[float], scale: float, spec: str) -> str:
@@ -122,8 +136,7 @@ def _format_row(label: str, values: list[float], scale: float, spec: str) -> str
     return f"  {label:<36}{cells}"
 
 
-def _print_run(env, args: argparse.Namespace, m) -> None:
-    scenario, pad = env.active_scenario, env.params.pad
+def _print_run(scenario, pad, args: argparse.Namespace, m) -> None:
     print(
         f"{scenario.name}: loads {scenario.loads_text}; descent from {scenario.descent_height_m * 1e3:g} mm; "
         f"{args.pad} pad (K = {pad.stiffness_n_per_m:.1f} N/m, D = {pad.damping_n_s_per_m:.1f} N s/m); "
@@ -162,56 +175,42 @@ def _print_run(env, args: argparse.Namespace, m) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from microg_env.analysis.evaluate import run_with_metrics
-    from microg_env.controllers import make_controller
-    from microg_env.envs.landing import MicroGravityLandingEnv
+    from microg_env.experiments.runner import run
     from microg_env.files import check_output_file
-    from microg_env.imperfections import Imperfections
-    from microg_env.params import RigParams
 
     plot = None if args.plot is None else check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
     if plot is not None:
         from microg_env.analysis.plots import figure_class
 
         figure_class()  # fail now, not after the run, if matplotlib is missing
+    if args.randomize and args.ideal:
+        raise ValueError("--randomize: an --ideal rig has nothing to randomise; give one of them")
     try:
-        scenario = _scenario(args)
+        spec = _run_spec(args)
     except ValueError as error:
         raise naming(error, RUN_OPTIONS) from None
-    video = None
+    video, render = None, None
     if args.video is not None:
         from microg_env.analysis.video import VIDEO_SIZE, VIDEO_SUFFIXES, LandingVideo, check_video_support
 
         path = check_output_file(args.video, "--video", VIDEO_SUFFIXES)
         check_video_support(path)
-        title = f"microg: {scenario.name}, {args.controller}, seed {args.seed}"
+        title = f"microg: {spec.scenario_schedule().name}, {args.controller}, seed {args.seed}"
         video = LandingVideo(path, title)
-    if args.randomize and args.ideal:
-        raise ValueError("--randomize: an --ideal rig has nothing to randomise; give one of them")
-    period, step = args.control_period * 1e-6, args.physics_step * 1e-6
+        render = {"render_mode": "rgb_array", "width": VIDEO_SIZE[0], "height": VIDEO_SIZE[1]}
     try:
-        env = MicroGravityLandingEnv(
-            scenario=scenario,
-            control_period_s=period,
-            physics_step_s=step,
-            imperfections=Imperfections.none() if args.ideal else Imperfections(),
-            domain_randomization=args.randomize or None,
-            params=replace(RigParams(), pad=pad_from_options(args)),
-            **({"render_mode": "rgb_array", "width": VIDEO_SIZE[0], "height": VIDEO_SIZE[1]} if video else {}),
-        )
-        controller = make_controller(args.controller, period)
+        result = run(spec, on_step=video, render=render)
     except ValueError as error:
         raise naming(error, RUN_OPTIONS) from None
-    trajectory, reference, metrics = run_with_metrics(env, controller, seed=args.seed, on_step=video)
-    env.close()
+    trajectory, reference, metrics = result.trajectory, result.reference, result.metrics
     if args.json:
         print(json.dumps(metrics.as_dict(), indent=2))
     else:
-        _print_run(env, args, metrics)
+        _print_run(trajectory.scenario, spec.rig_params().pad, args, metrics)
     if plot is not None:
         from microg_env.analysis.plots import plot_run
 
-        plot_run(trajectory, reference, f"{env.scenario.name}, {args.controller}, seed {args.seed}", plot)
+        plot_run(trajectory, reference, f"{trajectory.scenario.name}, {args.controller}, seed {args.seed}", plot)
         if not args.json:
             print(f"wrote {plot}")
     if video is not None:

@@ -35,7 +35,7 @@ from typing import ClassVar
 import numpy as np
 
 from microg_env.controllers.base import MAX_SPEED_M_S, Readings, VectorController
-from microg_env.controllers.pid import PID, controller_config, load_gains
+from microg_env.controllers.pid import PID, PIDGains, controller_config, load_gains
 from microg_env.params import RigParams
 from microg_env.sim.model import drive_inertia_kg_m2, flexible_unit, speed_loop_gains
 
@@ -71,12 +71,13 @@ class Feedforward(VectorController):
         control_period_s: float,
         params: RigParams | None = None,
         settings: FeedforwardSettings | None = None,
+        gains: PIDGains | None = None,
     ) -> None:
         super().__init__()
         params = RigParams() if params is None else params
         self.settings = FeedforwardSettings.load() if settings is None else settings
         self.control_period_s = control_period_s
-        self.pid = PID(load_gains("pid"), control_period_s)  # the tuned loop, unchanged
+        self.pid = PID(load_gains("pid") if gains is None else gains, control_period_s)  # the feedback loop
         screw, servo = params.screw, params.servo
         unit = flexible_unit(params)
         self._mass = params.lander.mass_kg

@@ -6,6 +6,8 @@ the path of an exported policy folder (a run's ``policy/``, written by ``microg 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 
 from microg_env.controllers.base import Controller
@@ -45,13 +47,20 @@ def check_controller_name(name: str) -> str:
     )
 
 
-def make_controller(name: str, control_period_s: float, params: RigParams | None = None) -> Controller:
+def make_controller(
+    name: str, control_period_s: float, params: RigParams | None = None, gains: Mapping[str, float] | None = None
+) -> Controller:
     """The named controller with its tuned settings; ``params`` is the nominal rig a model-based
-    controller assumes (default: the paper's rig, whatever the plant it drives)."""
+    controller assumes (default: the paper's rig, whatever the plant it drives); ``gains`` replace
+    fields of a baseline's tuned PID gains (``{"ki_per_s2": 5000.0}``; the feed-forward's feedback loop
+    is ``pid``'s)."""
     check_controller_name(name)
-    if name == "feedforward":
-        return Feedforward(control_period_s, params)
+    if gains and name not in BASELINES:
+        raise ValueError(f"gains {dict(gains)!r}: controller {name!r} has no PID gains to replace")
     if name in BASELINES:
-        return PID(load_gains(name), control_period_s, derivative_on_measurement=name == "pid-dom")
+        tuned = replace(load_gains("pid" if name == "feedforward" else name), **(gains or {}))
+        if name == "feedforward":
+            return Feedforward(control_period_s, params, gains=tuned)
+        return PID(tuned, control_period_s, derivative_on_measurement=name == "pid-dom")
     folder = Path(name) if is_policy_folder(name) else shipped_policy_folder(name)
     return load_policy(folder, control_period_s)

@@ -56,6 +56,7 @@ INFO_KEYS = (
     "foot_height_m",
     "lander_velocity_m_s",
     "lander_accel_m_s2",
+    "accelerometer_m_s2",
     "support_position_m",
     "support_velocity_m_s",
     "support_force_deviation_n",
@@ -215,6 +216,7 @@ class LandingCore:
         self.trim_height_m = np.zeros(n)
         self.gravity = np.full(n, params.gravity_m_s2)
         self.last_readings = np.zeros((2, n))  # ruler and encoder at the previous period
+        self.accelerometer = np.zeros(n)  # the accelerometer's last reading, m/s^2
         self.fresh = np.ones(n, dtype=bool)  # no previous reading yet: rates are 0
         self.reward_x = np.zeros(n)  # the reward of the last control period
 
@@ -447,6 +449,7 @@ class LandingCore:
         rates = (readings[:2] - self.last_readings[:, index]) / self.control_period_s
         rates[:, self.fresh[index]] = 0.0
         self.last_readings[:, index] = readings[:2]
+        self.accelerometer[index] = readings[2]
         self.fresh[index] = False
         raw = np.empty((ids.size, len(SCALES)))
         raw[:, 0], raw[:, 1], raw[:, 2], raw[:, 3] = readings[0], rates[0], readings[1], rates[1]
@@ -470,6 +473,7 @@ class LandingCore:
             "foot_height_m": qpos[:, rig.screw_qpos] + x,
             "lander_velocity_m_s": qvel[:, rig.screw_dof] + qvel[:, rig.qzs_dof],
             "lander_accel_m_s2": qacc[:, rig.screw_dof] + qacc[:, rig.qzs_dof],
+            "accelerometer_m_s2": self.accelerometer[ids],
             "support_position_m": qpos[:, rig.screw_qpos],
             "support_velocity_m_s": qvel[:, rig.screw_dof],
             "support_force_deviation_n": deviation,

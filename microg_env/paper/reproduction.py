@@ -12,15 +12,14 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
-from microg_env.analysis.evaluate import reference_for, run_episode, run_with_metrics
-from microg_env.analysis.metrics import RunMetrics, compute_metrics
+from microg_env.analysis.metrics import RunMetrics
 from microg_env.analysis.trajectory import Trajectory
-from microg_env.controllers import PID, load_gains, make_controller
-from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.experiments.runner import run
+from microg_env.experiments.spec import RunSpec
 from microg_env.paper.calibration import Calibration, stored_calibration, with_pad
-from microg_env.params import BalancerParams, QZSParams, RigParams
+from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS
 
 PADS = ("paper", "calibrated")
@@ -90,38 +89,33 @@ def compute(duration_s: float = 30.0, seed: int = 0, progress: Callable[[int], N
     for pad in PADS:
         params = with_pad(RigParams(), pad)
         pads[pad] = (params.pad.stiffness_n_per_m, params.pad.damping_n_s_per_m)
+        overrides = {"pad.stiffness_n_per_m": pads[pad][0], "pad.damping_n_s_per_m": pads[pad][1]}
         for number in NUMBERS:
-            env = MicroGravityLandingEnv(scenario=CONDITIONS[number], params=params)
-            controller = make_controller("pid", env.control_period_s)
-            trajectory = run_episode(env, controller, seed=seed, duration_s=duration_s, on_progress=progress)
-            reference = reference_for(env, trajectory)
-            runs[pad, number] = ConditionRun(trajectory, reference, compute_metrics(trajectory, reference))
+            spec = RunSpec(f"condition-{number}", "pid", seed, overrides=overrides, duration_s=duration_s)
+            result = run(spec, on_progress=progress)
+            runs[pad, number] = ConditionRun(result.trajectory, result.reference, result.metrics)
 
-    tuned = load_gains("pid")
-    paper_like = replace(tuned, kp_per_s=PAPER_LIKE_GAINS[0], ki_per_s2=PAPER_LIKE_GAINS[1])
+    paper_like = {"kp_per_s": PAPER_LIKE_GAINS[0], "ki_per_s2": PAPER_LIKE_GAINS[1]}
     eq17 = {}
     for reading, sign in READINGS.items():
-        params = replace(RigParams(), qzs=replace(QZSParams(), residual_stiffness_n_per_m=sign * 35510.0))
-        for label, gains in (("pid", tuned), ("ki4000", paper_like)):
+        overrides = {"qzs.residual_stiffness_n_per_m": sign * 35510.0}
+        for label, gains in (("pid", {}), ("ki4000", paper_like)):
             for number in NUMBERS:
                 if (reading, label) == ("literal", "pid") and duration_s >= _free_fall_s(number):
                     eq17[reading, label, number] = runs["paper", number].metrics.compensation_error_pct
                     continue
-                env = MicroGravityLandingEnv(scenario=CONDITIONS[number], params=params)
                 length = min(_free_fall_s(number), duration_s)
-                metrics = run_with_metrics(env, PID(gains, env.control_period_s), seed=seed, duration_s=length)[2]
-                eq17[reading, label, number] = metrics.compensation_error_pct
+                spec = RunSpec(f"condition-{number}", "pid", seed, overrides, gains, duration_s=length)
+                eq17[reading, label, number] = run(spec).metrics.compensation_error_pct
                 advance(round(length * 1e3))
 
     drift = {}
     for placement in PLACEMENTS:
-        params = replace(RigParams(), balancer=BalancerParams(placement=placement))
         errors = []
         for drift_seed in DRIFT_SEEDS:
-            env = MicroGravityLandingEnv(condition=3, params=params)
             length = min(FIFTY_GRAM_STAGE_S, duration_s)
-            metrics = run_with_metrics(env, make_controller("pid", 1e-3), seed=drift_seed, duration_s=length)[2]
-            errors.append(metrics.compensation_error_pct[0])
+            spec = RunSpec("condition-3", "pid", drift_seed, {"balancer.placement": placement}, duration_s=length)
+            errors.append(run(spec).metrics.compensation_error_pct[0])
             advance(round(length * 1e3))
         drift[placement] = errors
     return Reproduction(

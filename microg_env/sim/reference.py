@@ -68,6 +68,7 @@ def simulate_reference(
         foot_height_m=height,
         lander_velocity_m_s=velocity,
         lander_accel_m_s2=accel,
+        accelerometer_m_s2=accel,
         pad_force_n=force,
         placed_load_kg=load,
         stage=stage,

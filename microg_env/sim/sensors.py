@@ -28,17 +28,19 @@ class SensorModel:
         #: RMS noise per reading of each sensor (the encoder is exact but quantised).
         self.noise = np.array([[sensors.ruler_noise_m], [0.0], [accelerometer], [sensors.force_noise_n]])
         #: Quantisation steps of ruler and encoder, m.
+        #: Constant offset of each reading (the accelerometer's bias).
+        self.bias = np.array([[0.0], [0.0], [sensors.accelerometer_bias_m_s2], [0.0]])
         self.steps = np.array(
             [[sensors.ruler_resolution_m], [screw.lead_m / screw.belt_ratio / sensors.encoder_counts_per_rev]]
         )
         self.noisy = noisy  # False: exact readings (the sensor-noise imperfection off)
 
     def read(self, truth: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
-        """Readings (4, n) of n rigs' true values ``truth`` (4, n): noise added (``normals``, (4, n)
-        standard normal draws), ruler and encoder quantised."""
+        """Readings (4, n) of n rigs' true values ``truth`` (4, n): bias and noise added (``normals``,
+        (4, n) standard normal draws), ruler and encoder quantised."""
         if not self.noisy:
             return truth
-        readings = truth + self.noise * normals
+        readings = truth + self.bias + self.noise * normals
         readings[:2] = np.rint(readings[:2] / self.steps) * self.steps
         return readings
 

@@ -1,0 +1,274 @@
+"""A campaign file: a base :class:`~microg_env.experiments.spec.RunSpec`, a full grid (``sweep:``),
+Monte Carlo draws (``samples:``) and seeds, expanded to the campaign's runs.
+
+.. code-block:: yaml
+
+    name: period-bandwidth          # required
+    description: free text
+    base:                           # RunSpec fields (defaults: the RunSpec's)
+      scenario: condition-1
+      duration_s: 7
+    sweep:                          # every combination of these lists
+      control_period_us: [1000, 500, 200, 100]
+      servo.speed_loop_gain_hz: [50, 100, 200]
+      controller: [pid-retuned, feedforward]
+      qzs.guide_friction_n, qzs.guide_static_friction_n: [[0.1, 0.125], [0.2, 0.25]]  # together
+    samples:                        # count draws, each a point; from its own generator seed
+      count: 20
+      seed: 0
+      draw:
+        qzs.guide_friction_n: {uniform: [0.1, 0.5]}
+        pad.stiffness_n_per_m: {loguniform: [4666, 9387]}
+    seeds: {first: 1000, count: 3}  # or a list
+    report: period-bandwidth        # a study page to write (microg_env.experiments.studies)
+
+A key names a RunSpec field (``controller``, ``control_period_us``, ...), a PID gain
+(``gains.ki_per_s2``), an imperfection (``imperfections.friction``) or a rig parameter by dotted
+path (``qzs.guide_friction_n``). Keys joined by commas vary together: each value is a list of
+one value per key. Runs = grid points x samples x seeds.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from microg_env import validate
+from microg_env.experiments.spec import RunSpec
+from microg_env.params import parameter_paths
+
+#: The distributions ``samples:`` draws from, with their arguments.
+DISTRIBUTIONS = {
+    "uniform": "[low, high]",
+    "loguniform": "[low, high], both > 0",
+    "normal": "[mean, standard deviation]",
+    "choice": "[a list of values]",
+}
+#: Most runs one campaign may hold.
+MAX_RUNS = 1_000_000
+_TOP_KEYS = ("name", "description", "base", "sweep", "samples", "seeds", "report", "batch_size")
+#: Specs one Ray task runs as rigs of one batch at most (a task lost to Ctrl-C loses this many).
+DEFAULT_BATCH_SIZE = 16
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run of a campaign: its spec and the values of the campaign's columns (swept, sampled)."""
+
+    spec: RunSpec
+    columns: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Campaign:
+    """A parsed campaign file (module docstring)."""
+
+    name: str
+    description: str
+    base: dict[str, Any]
+    sweep: dict[str, list]
+    samples: dict[str, Any] | None
+    seeds: tuple[int, ...]
+    report: str | None
+    batch_size: int
+
+    @classmethod
+    def load(cls, path: str | Path) -> Campaign:
+        """The campaign of a YAML file; a bad file raises ValueError naming the file and the fault."""
+        import yaml
+
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise ValueError(f"campaign file {str(path)!r} does not exist") from None
+        except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
+            raise ValueError(f"campaign file {str(path)!r} cannot be read: {error}") from None
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as error:
+            raise ValueError(f"campaign file {str(path)!r} is not valid YAML: {str(error).splitlines()[0]}") from None
+        try:
+            return cls.from_dict(data)
+        except ValueError as error:
+            raise ValueError(f"campaign file {str(path)!r}: {error}") from None
+
+    @classmethod
+    def from_dict(cls, data: object) -> Campaign:
+        if not isinstance(data, Mapping):
+            raise ValueError(f"must be a mapping with keys {', '.join(_TOP_KEYS)}, got {data!r}")
+        unknown = sorted(set(data) - set(_TOP_KEYS))
+        if unknown:
+            raise ValueError(f"unknown key {unknown[0]!r}; known: {', '.join(_TOP_KEYS)}")
+        name = data.get("name")
+        if not isinstance(name, str) or not name.strip():
+            raise ValueError(f"name must be a non-empty string, got {name!r}")
+        base = data.get("base") or {}
+        validate.instance("base", base, Mapping)
+        sweep = data.get("sweep") or {}
+        validate.instance("sweep", sweep, Mapping)
+        for key, values in sweep.items():
+            if not isinstance(values, list) or not values:
+                raise ValueError(f"sweep: {key} must be a non-empty list, got {values!r}")
+            keys = _keys(key)
+            if len(keys) > 1 and not all(isinstance(v, list) and len(v) == len(keys) for v in values):
+                raise ValueError(f"sweep: each value of {key!r} must be a list of {len(keys)} values, got {values!r}")
+        samples = data.get("samples")
+        if samples is not None:
+            _check_samples(samples)
+        report = data.get("report")
+        if report is not None:
+            from microg_env.experiments.studies import STUDIES
+
+            validate.choice("report", report, tuple(STUDIES))
+        batch_size = validate.integer("batch_size", data.get("batch_size", DEFAULT_BATCH_SIZE), 1, 256)
+        campaign = cls(
+            name.strip(),
+            str(data.get("description") or ""),
+            dict(base),
+            {str(k): list(v) for k, v in sweep.items()},
+            samples,
+            _seeds(data.get("seeds", [0])),
+            report,
+            batch_size,
+        )
+        campaign.runs()  # every run's spec is checked now, before anything starts
+        return campaign
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The keys the campaign varies (swept, then sampled), each a column of its results."""
+        drawn = tuple(self.samples["draw"]) if self.samples else ()
+        return tuple(k for key in self.sweep for k in _keys(key)) + drawn
+
+    def runs(self) -> list[Run]:
+        """Every run: grid points x samples x seeds, in that nesting order."""
+        points = []
+        for values in itertools.product(*self.sweep.values()):
+            point = {}
+            for key, value in zip(self.sweep, values, strict=True):
+                keys = _keys(key)
+                point |= dict(zip(keys, value, strict=True)) if len(keys) > 1 else {key: value}
+            points.append(point)
+        draws = _draws(self.samples) if self.samples else [{}]
+        total = len(points) * len(draws) * len(self.seeds)
+        if total > MAX_RUNS:
+            raise ValueError(f"{total} runs, more than {MAX_RUNS}")
+        out, seen = [], {}
+        for point in points:
+            for draw in draws:
+                values = point | draw
+                fields_ = _spec_fields(self.base, values)
+                for seed in self.seeds:
+                    spec = RunSpec.from_dict(fields_ | {"seed": seed})
+                    if spec.hash in seen:
+                        raise ValueError(f"runs {seen[spec.hash]} and {values} are the same run (seed {seed})")
+                    seen[spec.hash] = values
+                    out.append(Run(spec, values))
+        return out
+
+
+def _keys(key: str) -> list[str]:
+    """The keys a sweep entry varies together (joined by commas)."""
+    return [k.strip() for k in key.split(",")]
+
+
+def _spec_fields(base: Mapping[str, Any], values: Mapping[str, Any]) -> dict[str, Any]:
+    """RunSpec fields: ``base`` with each campaign key's value put where it belongs."""
+    names = {f.name for f in fields(RunSpec)}
+    out = {key: (dict(value) if isinstance(value, Mapping) else value) for key, value in base.items()}
+    for key in ("overrides", "gains", "imperfections"):
+        out.setdefault(key, {})
+    known = parameter_paths()
+    for key, value in values.items():
+        part, _, rest = key.partition(".")
+        if key in names and key not in ("overrides", "gains", "imperfections", "seed"):
+            out[key] = value
+        elif part in ("gains", "imperfections", "overrides") and rest:
+            out[part][rest] = value
+        elif key in known:
+            out["overrides"][key] = value
+        else:
+            raise ValueError(
+                f"{key!r} is neither a run spec field, gains.NAME, imperfections.NAME nor a rig parameter "
+                "(dotted path, e.g. qzs.guide_friction_n)"
+            )
+    try:
+        RunSpec.from_dict(out)
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"at {dict(values)}: {error}") from None
+    return out
+
+
+def _seeds(value: object) -> tuple[int, ...]:
+    if isinstance(value, Mapping):
+        unknown = sorted(set(value) - {"first", "count"})
+        if unknown or "count" not in value:
+            raise ValueError(f"seeds must be a list or {{first: N, count: M}}, got {dict(value)!r}")
+        first = validate.integer("seeds.first", value.get("first", 0), 0, 2**32 - 1)
+        count = validate.integer("seeds.count", value["count"], 1, MAX_RUNS)
+        return tuple(range(first, first + count))
+    if not isinstance(value, list) or not value:
+        raise ValueError(f"seeds must be a non-empty list or {{first: N, count: M}}, got {value!r}")
+    seeds = tuple(validate.integer("seeds item", s, 0, 2**32 - 1) for s in value)
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"seeds repeat a seed: {list(seeds)}")
+    return seeds
+
+
+def _check_samples(samples: object) -> None:
+    validate.instance("samples", samples, Mapping)
+    unknown = sorted(set(samples) - {"count", "seed", "draw"})
+    if unknown:
+        raise ValueError(f"samples: unknown key {unknown[0]!r}; known: count, seed, draw")
+    validate.integer("samples.count", samples.get("count"), 1, MAX_RUNS)
+    validate.integer("samples.seed", samples.get("seed", 0), 0, 2**32 - 1)
+    draw = samples.get("draw")
+    if not isinstance(draw, Mapping) or not draw:
+        raise ValueError(f"samples.draw must map keys to distributions, got {draw!r}")
+    for key, distribution in draw.items():
+        if not isinstance(distribution, Mapping) or len(distribution) != 1:
+            raise ValueError(
+                f"samples.draw.{key} must be one of {{uniform|loguniform|normal|choice: [...]}}, got {distribution!r}"
+            )
+        ((kind, args),) = distribution.items()
+        if kind not in DISTRIBUTIONS:
+            raise ValueError(f"samples.draw.{key}: unknown distribution {kind!r}; known: {', '.join(DISTRIBUTIONS)}")
+        if kind == "choice":
+            if not isinstance(args, list) or not args:
+                raise ValueError(f"samples.draw.{key}.choice must be a non-empty list, got {args!r}")
+            continue
+        if not (isinstance(args, list) and len(args) == 2):
+            raise ValueError(f"samples.draw.{key}.{kind} must be {DISTRIBUTIONS[kind]}, got {args!r}")
+        a, b = (validate.finite(f"samples.draw.{key}.{kind}", v) for v in args)
+        if (
+            (kind in ("uniform", "loguniform") and not a < b)
+            or (kind == "loguniform" and a <= 0)
+            or (kind == "normal" and b <= 0)
+        ):
+            raise ValueError(f"samples.draw.{key}.{kind} must be {DISTRIBUTIONS[kind]} (low < high), got {args!r}")
+
+
+def _draws(samples: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """``count`` draws of every key, from one generator seeded ``seed`` (keys drawn in file order)."""
+    rng = np.random.default_rng(samples.get("seed", 0))
+    count = samples["count"]
+    columns = {}
+    for key, distribution in samples["draw"].items():
+        ((kind, args),) = distribution.items()
+        if kind == "uniform":
+            values = rng.uniform(args[0], args[1], count)
+        elif kind == "loguniform":
+            values = np.exp(rng.uniform(math.log(args[0]), math.log(args[1]), count))
+        elif kind == "normal":
+            values = rng.normal(args[0], args[1], count)
+        else:
+            values = [args[i] for i in rng.integers(len(args), size=count)]
+        columns[key] = [float(v) if isinstance(v, np.floating) else v for v in values]
+    return [{key: columns[key][i] for key in columns} for i in range(count)]

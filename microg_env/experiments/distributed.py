@@ -1,0 +1,205 @@
+"""A campaign run on Ray: a local instance on this machine's cores, or a cluster by address.
+
+The runs not yet stored (:class:`~microg_env.experiments.store.ResultStore`) are cut into tasks of
+specs that share a rig (at most the campaign's ``batch_size``), each a one-CPU Ray task that runs
+its specs as rigs of one batch (:func:`~microg_env.experiments.runner.run_many`). The driver stores
+each task's rows as the task finishes, so an interrupted campaign keeps every finished task and
+loses none of its rows; re-running it skips the stored runs (a failed run is tried again). A run
+that raises, or a task whose worker dies, is stored with its error.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from microg_env.experiments.campaign import Campaign, Run
+from microg_env.experiments.runner import RunResult, run_many
+from microg_env.experiments.spec import RunSpec
+from microg_env.experiments.store import FAILED, OK, ResultStore, result_row
+from microg_env.files import write_text
+
+#: Seconds to wait for a cluster's head to answer.
+CONNECT_TIMEOUT_S = 5.0
+#: The campaign's table, in its folder.
+RESULTS_FILE = "results.parquet"
+#: The campaign file as it was run, in its folder.
+CAMPAIGN_COPY = "campaign.json"
+
+
+@dataclass(frozen=True)
+class CampaignSummary:
+    """What a campaign run did: runs in the campaign, run now (ok and failed), skipped as stored."""
+
+    name: str
+    runs: int
+    done: int
+    failed: int
+    skipped: int
+    interrupted: bool
+    folder: Path
+    results: Path
+    report: Path | None
+    wall_s: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "campaign": self.name,
+            "runs": self.runs,
+            "done": self.done,
+            "failed": self.failed,
+            "skipped": self.skipped,
+            "interrupted": self.interrupted,
+            "folder": str(self.folder),
+            "results": str(self.results),
+            "report": None if self.report is None else str(self.report),
+            "wall_s": round(self.wall_s, 1),
+        }
+
+
+def _run_task(specs: list[dict], columns: list[dict]) -> list[dict]:
+    """A Ray task: these specs as one batch on one core; their rows (a run that raised: its error)."""
+    parsed = [RunSpec.from_dict(spec) for spec in specs]
+    rows: list[dict | None] = [None] * len(parsed)
+    for batch in run_many(parsed, workers=1):
+        for i, result in batch:
+            rows[i] = result_row(result, columns[i])
+    return rows
+
+
+def tasks_of(runs: Sequence[Run], batch_size: int) -> list[list[Run]]:
+    """``runs`` cut into tasks: specs sharing a rig, at most ``batch_size`` each, equal sizes."""
+    groups: dict[str, list[Run]] = {}
+    for run in runs:
+        groups.setdefault(run.spec.batch_key, []).append(run)
+    tasks = []
+    for members in groups.values():
+        count = math.ceil(len(members) / batch_size)
+        size = math.ceil(len(members) / count)
+        tasks += [members[k : k + size] for k in range(0, len(members), size)]
+    return tasks
+
+
+def execute(
+    campaign: Campaign,
+    folder: str | os.PathLike,
+    address: str | None = None,
+    num_cpus: int | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
+) -> CampaignSummary:
+    """Run ``campaign``'s missing runs on Ray and store them in ``folder``; ``on_progress(runs done,
+    runs to do)`` as tasks finish. A KeyboardInterrupt cancels the tasks still out, keeps every
+    stored row, writes the table of what is stored and re-raises."""
+    import ray
+
+    start = time.perf_counter()
+    folder = Path(folder)
+    store = ResultStore(folder)
+    runs = campaign.runs()
+    stored = store.statuses()
+    todo = [run for run in runs if stored.get(run.spec.hash) != OK]
+    skipped = len(runs) - len(todo)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_text(folder / CAMPAIGN_COPY, json.dumps(_campaign_record(campaign), indent=2) + "\n")
+    done = failed = 0
+    interrupted = False
+    if todo:
+        if not ray.is_initialized():
+            ray.init(
+                address=address,
+                num_cpus=None if address else num_cpus,
+                include_dashboard=False,
+                log_to_driver=False,
+                logging_level="ERROR",
+                configure_logging=True,
+            )
+        remote = ray.remote(num_cpus=1, max_retries=0)(_run_task)
+        pending = {}
+        for task in tasks_of(todo, campaign.batch_size):
+            ref = remote.remote([run.spec.as_dict() for run in task], [run.columns for run in task])
+            pending[ref] = task
+        try:
+            while pending:
+                ready, _ = ray.wait(list(pending), num_returns=1)
+                task = pending.pop(ready[0])
+                try:
+                    rows = ray.get(ready[0])
+                except Exception as error:  # the worker died or the task could not run: record it
+                    message = f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
+                    rows = [result_row(RunResult(run.spec, None, message), run.columns) for run in task]
+                store.write(rows)
+                failed += sum(row["status"] == FAILED for row in rows)
+                done += len(rows)
+                if on_progress is not None:
+                    on_progress(len(rows), len(todo))
+        except KeyboardInterrupt:
+            interrupted = True
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise
+        finally:
+            if interrupted or not address:
+                ray.shutdown()
+            _finish(store, runs, folder)
+    else:
+        _finish(store, runs, folder)
+    report = None
+    if campaign.report is not None:
+        from microg_env.experiments.studies import write_study
+
+        report = write_study(campaign, store.table([run.spec.hash for run in runs]), folder)
+    return CampaignSummary(
+        campaign.name,
+        len(runs),
+        done - failed,
+        failed,
+        skipped,
+        interrupted,
+        folder,
+        folder / RESULTS_FILE,
+        report,
+        time.perf_counter() - start,
+    )
+
+
+def check_address(address: str) -> None:
+    """Before Ray is imported: raise ConnectionError unless something answers at ``address``
+    (HOST:PORT; ``auto`` finds the cluster this machine started), so a wrong address fails in
+    seconds, not after Ray's minutes of retries; and join a cluster that uses token authentication
+    (Ray's default for ``ray start``) with the token Ray keeps in ~/.ray/auth_token, as ``ray start``
+    does."""
+    if address != "auto":
+        host, _, port = address.removeprefix("ray://").rpartition(":")
+        if not host or not port.isdigit():
+            raise ValueError(f"--address {address!r}: give HOST:PORT (the head's GCS port) or 'auto'")
+        try:
+            socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S).close()
+        except OSError as error:
+            raise ConnectionError(f"nothing answers at {address} ({error.strerror or error})") from None
+    if "RAY_AUTH_MODE" not in os.environ and (Path.home() / ".ray" / "auth_token").is_file():
+        os.environ["RAY_AUTH_MODE"] = "token"
+
+
+def _finish(store: ResultStore, runs: Sequence[Run], folder: Path) -> None:
+    if store.parts.exists():
+        store.export(folder / RESULTS_FILE, [run.spec.hash for run in runs])
+
+
+def _campaign_record(campaign: Campaign) -> dict[str, Any]:
+    return {
+        "name": campaign.name,
+        "description": campaign.description,
+        "base": campaign.base,
+        "sweep": campaign.sweep,
+        "samples": campaign.samples,
+        "seeds": list(campaign.seeds),
+        "report": campaign.report,
+        "batch_size": campaign.batch_size,
+    }

@@ -1,0 +1,217 @@
+"""The one runner: :func:`run` runs a :class:`~microg_env.experiments.spec.RunSpec`, :func:`run_many`
+runs many, as rigs of ``mujoco.batch`` batches where they share a rig (specs that differ only in
+controller, gains or seed), and both return :class:`RunResult`: the metrics and what produced them.
+
+:func:`run` steps the single Gymnasium environment (it can render a video as it goes);
+:func:`run_many` steps the vector core (:func:`microg_env.analysis.batch.run_batches`). A spec gives
+the same trajectory either way, bit for bit (tests/test_vector.py, tests/test_experiments.py).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import platform
+import time
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from functools import cache
+from importlib import metadata
+from typing import Any
+
+import gymnasium as gym
+
+from microg_env.analysis.batch import EpisodeSpec, run_batches
+from microg_env.analysis.metrics import RunMetrics, compute_metrics
+from microg_env.analysis.trajectory import Trajectory
+from microg_env.experiments.spec import RETUNED_PID, RunSpec
+from microg_env.sim.reference import simulate_reference
+
+
+@cache
+def versions() -> dict[str, str]:
+    """The versions a result was produced with."""
+    out = {"python": platform.python_version()}
+    for package in ("microg-env", "mujoco", "numpy", "gymnasium"):
+        try:
+            out[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:  # pragma: no cover - a source tree not installed
+            out[package] = "unknown"
+    return out
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """A run's metrics (None if it raised, with ``error``), its spec, the PID gains a re-tuned
+    controller used, the wall time and versions; the trajectories only while in memory."""
+
+    spec: RunSpec
+    metrics: RunMetrics | None
+    error: str | None = None
+    tuned_gains: dict[str, float] = field(default_factory=dict)
+    wall_s: float = math.nan
+    versions: dict[str, str] = field(default_factory=versions)
+    trajectory: Trajectory | None = field(default=None, repr=False, compare=False)
+    reference: Trajectory | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+    def without_trajectories(self) -> RunResult:
+        return RunResult(self.spec, self.metrics, self.error, self.tuned_gains, self.wall_s, self.versions)
+
+
+def run(
+    spec: RunSpec,
+    on_step: Callable[[gym.Env, dict], None] | None = None,
+    on_progress: Callable[[int], None] | None = None,
+    render: dict[str, Any] | None = None,
+) -> RunResult:
+    """Run ``spec`` on the single environment (``render``: its render keyword arguments;
+    ``on_step(env, info)`` after the reset and every step; ``on_progress(steps)``). Raises on a bad
+    spec; the result keeps both trajectories."""
+    from microg_env.analysis.evaluate import run_with_metrics
+    from microg_env.envs.landing import MicroGravityLandingEnv
+
+    start = time.perf_counter()
+    resolved, gains = _resolve_controller([spec])[0]
+    env = MicroGravityLandingEnv(**resolved.env_kwargs(), **(render or {}))
+    try:
+        controller = _controller(resolved)
+        trajectory, reference, metrics = run_with_metrics(
+            env, controller, resolved.seed, on_step=on_step, on_progress=on_progress
+        )
+    finally:
+        env.close()
+    return RunResult(spec, metrics, None, gains, time.perf_counter() - start, versions(), trajectory, reference)
+
+
+def run_many(
+    specs: Sequence[RunSpec],
+    workers: int = 1,
+    progress: Callable[[float], None] | None = None,
+    keep_trajectories: bool = False,
+) -> Iterator[list[tuple[int, RunResult]]]:
+    """Run ``specs``, one batch per shared rig, and yield each batch's (index in ``specs``, result)
+    as it ends. A spec or batch that raises gives failed results (``error``), never an exception.
+    ``workers``: the batch's threads and the processes of the ideal references;
+    ``progress(runs)``: finished fractions of runs; ``keep_trajectories``: keep each result's
+    trajectory and reference (else only metrics, so memory holds one batch)."""
+    groups: dict[str, list[int]] = {}
+    for i, spec in enumerate(specs):
+        groups.setdefault(spec.batch_key, []).append(i)
+    with contextlib.ExitStack() as stack:
+        pool = stack.enter_context(ProcessPoolExecutor(max_workers=workers)) if workers > 1 else None
+        for every in groups.values():
+            members = []
+            for i in every:  # a spec whose controller cannot be made fails alone, before any stepping
+                try:
+                    if specs[i].controller != RETUNED_PID:
+                        _controller(specs[i])
+                    members.append(i)
+                except Exception as error:
+                    if progress is not None:
+                        progress(1)
+                    yield [(i, RunResult(specs[i], None, _error_text(error)))]
+            if not members:
+                continue
+            group = [specs[i] for i in members]
+            start = time.perf_counter()
+            try:
+                for batch in _run_group(group, workers, progress, pool):
+                    elapsed = (time.perf_counter() - start) / max(len(batch), 1)
+                    start = time.perf_counter()
+                    yield [(members[i], _finished(result, elapsed, keep_trajectories)) for i, result in batch]
+            except Exception as error:  # recorded per run: one bad batch must not stop a campaign
+                text = _error_text(error)
+                if progress is not None:
+                    progress(len(group))
+                yield [(i, RunResult(specs[i], None, text)) for i in members]
+
+
+def run_all(specs: Sequence[RunSpec], workers: int = 1, **kwargs) -> list[RunResult]:
+    """Every result of :func:`run_many` (same arguments), in the order of ``specs``."""
+    results: list = [None] * len(specs)
+    for batch in run_many(specs, workers, **kwargs):
+        for i, result in batch:
+            results[i] = result
+    return results
+
+
+def _finished(result: RunResult, wall_s: float, keep: bool) -> RunResult:
+    result = RunResult(
+        result.spec, result.metrics, result.error, result.tuned_gains, wall_s, result.versions,
+        result.trajectory, result.reference,
+    )  # fmt: skip
+    return result if keep else result.without_trajectories()
+
+
+def _error_text(error: BaseException) -> str:
+    """The error's one-line message and where it was raised."""
+    frame = traceback.extract_tb(error.__traceback__)[-1] if error.__traceback__ else None
+    where = f" ({frame.filename.rsplit('/', 1)[-1]}:{frame.lineno})" if frame else ""
+    return f"{type(error).__name__}: {error}{where}"
+
+
+def _resolve_controller(specs: Sequence[RunSpec]) -> list[tuple[RunSpec, dict[str, float]]]:
+    """Each spec as it runs: ``pid-retuned`` becomes ``pid`` with the gains the tuner chose on the
+    spec's rig and period (once for all specs of one rig), with those gains."""
+    tuned: dict[str, dict[str, float]] = {}
+    out = []
+    for spec in specs:
+        if spec.controller != RETUNED_PID:
+            out.append((spec, {}))
+            continue
+        if spec.batch_key not in tuned:
+            from microg_env.experiments.tuning import retune
+
+            tuned[spec.batch_key] = retune(spec).gains_dict()
+        gains = tuned[spec.batch_key] | dict(spec.gains)
+        out.append((spec.replace(controller="pid", gains=gains), gains))
+    return out
+
+
+def _controller(spec: RunSpec):
+    from microg_env.controllers.registry import make_controller
+
+    return make_controller(spec.controller, spec.control_period_s, spec.rig_params(), spec.gains)
+
+
+def _reference(job: tuple) -> Trajectory:
+    """The ideal-microgravity landing of one plant and schedule (a process pool's task)."""
+    scenario, params, control_period_s, physics_step_s, duration_s = job
+    return simulate_reference(scenario, params, control_period_s, physics_step_s, duration_s)
+
+
+def _run_group(group: Sequence[RunSpec], workers: int, progress, pool) -> Iterator[list[tuple[int, RunResult]]]:
+    """One rig's specs: their batches, and one ideal reference per plant, schedule and length
+    (every controller on a seed meets the same plant)."""
+    resolved = _resolve_controller(group)
+    episodes = []
+    for spec, _ in resolved:
+        episodes.append(EpisodeSpec(spec.controller, spec.scenario_schedule(), spec.seed, tuple(spec.gains.items())))
+    first = resolved[0][0]
+    settings = first.env_kwargs()
+    del settings["scenario"]
+    for batch in run_batches(episodes, settings, workers, progress):
+        jobs: dict[tuple, tuple] = {}
+        keys = []
+        for _, trajectory, params in batch:
+            length = float(trajectory.time_s[-1])
+            keys.append((repr(trajectory.scenario), repr(params), length))
+            jobs.setdefault(
+                keys[-1], (trajectory.scenario, params, first.control_period_s, first.physics_step_s, length)
+            )
+        computed = pool.map(_reference, jobs.values()) if pool is not None else map(_reference, jobs.values())
+        references = dict(zip(jobs, computed, strict=True))
+        out = []
+        for (i, trajectory, _), key in zip(batch, keys, strict=True):
+            reference = references[key]
+            metrics = compute_metrics(trajectory, reference)
+            out.append(
+                (i, RunResult(group[i], metrics, None, resolved[i][1], math.nan, versions(), trajectory, reference))
+            )
+        yield out

@@ -1,0 +1,213 @@
+"""One run, fully specified: :class:`RunSpec`, frozen, serialisable and content-hashed.
+
+A spec names everything a run depends on: the test schedule, the rig's parameters by dotted path
+(``servo.speed_loop_gain_hz``, ``qzs.guide_friction_n``), the imperfections switched off, the domain
+randomisation, the controller (a name, a policy folder, or ``pid-retuned``: the PID re-tuned on
+this spec's rig and period), its gains, the seed, the control period, the physics step and the
+duration. Two specs with equal content have equal :attr:`RunSpec.hash`, on any machine and in any
+process, so a campaign's stored results are keyed by it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from microg_env import validate
+from microg_env.controllers.pid import PIDGains
+from microg_env.imperfections import Imperfections
+from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides
+from microg_env.scenarios import LoadStep, Scenario, comparison_scenarios
+
+#: The controller that :mod:`microg_env.experiments.tuning` re-tunes on each spec's rig and period.
+RETUNED_PID = "pid-retuned"
+#: Characters of the SHA-256 content hash kept (64 bits: no collision in any campaign's lifetime).
+HASH_CHARS = 16
+#: The fields runs of one batch may differ in (the vector environment steps them together).
+PER_RIG_FIELDS = ("controller", "gains", "seed")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run; see the module docstring. ``loads`` and ``descent_height_m`` replace the named
+    scenario's schedule ((kg, switch height m or None) pairs; a custom schedule), ``duration_s`` its
+    length; ``overrides`` are rig parameters by dotted path; ``gains`` replace fields of the PID's
+    tuned gains (``ki_per_s2``, ...); ``imperfections`` switches named imperfections (all on by
+    default)."""
+
+    scenario: str = "condition-1"
+    controller: str = "pid"
+    seed: int = 0
+    overrides: Mapping[str, Any] = field(default_factory=dict)
+    gains: Mapping[str, float] = field(default_factory=dict)
+    imperfections: Mapping[str, bool] = field(default_factory=dict)
+    randomize: bool = False
+    control_period_us: float = CONTROL_PERIOD_S * 1e6
+    physics_step_us: float = PHYSICS_STEP_S * 1e6
+    duration_s: float | None = None
+    loads: tuple[tuple[float, float | None], ...] | None = None
+    descent_height_m: float | None = None
+
+    def __post_init__(self) -> None:
+        known = comparison_scenarios()
+        if self.scenario not in known:
+            raise ValueError(f"RunSpec.scenario must be one of {', '.join(known)}, got {self.scenario!r}")
+        validate.instance("RunSpec.controller", self.controller, str)
+        validate.integer("RunSpec.seed", self.seed, 0, 2**32 - 1)
+        validate.instance("RunSpec.randomize", self.randomize, bool)
+        set_ = object.__setattr__
+        set_(self, "overrides", _overrides(self.overrides))
+        set_(self, "gains", _named_floats("RunSpec.gains", self.gains, [f.name for f in fields(PIDGains)]))
+        flags = [f.name for f in fields(Imperfections)]
+        set_(self, "imperfections", _named_flags(self.imperfections, flags))
+        set_(self, "control_period_us", validate.positive("RunSpec.control_period_us", self.control_period_us, "us"))
+        set_(self, "physics_step_us", validate.positive("RunSpec.physics_step_us", self.physics_step_us, "us"))
+        if self.duration_s is not None:
+            set_(self, "duration_s", validate.positive("RunSpec.duration_s", self.duration_s, "s"))
+        if self.descent_height_m is not None:
+            set_(self, "descent_height_m", validate.positive("RunSpec.descent_height_m", self.descent_height_m, "m"))
+        if self.loads is not None:
+            set_(self, "loads", _loads(self.loads))
+        self.scenario_schedule()  # a bad schedule is named now, not in a worker
+
+    # -- identity ----------------------------------------------------------------------------------
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready and complete: ``RunSpec.from_dict(spec.as_dict()) == spec``."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["loads"] = None if self.loads is None else [list(load) for load in self.loads]
+        return (
+            out
+            | {"overrides": dict(self.overrides), "gains": dict(self.gains)}
+            | {"imperfections": dict(self.imperfections)}
+        )
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> RunSpec:
+        """The spec of ``values`` (RunSpec field names; unknown names are refused)."""
+        validate.instance("run spec", values, Mapping)
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - names)
+        if unknown:
+            raise ValueError(f"unknown run spec field {unknown[0]!r}; known: {', '.join(sorted(names))}")
+        values = dict(values)
+        if values.get("loads") is not None:
+            values["loads"] = tuple(tuple(load) if isinstance(load, list) else load for load in values["loads"])
+        return cls(**values)
+
+    @property
+    def hash(self) -> str:
+        """The content hash: SHA-256 of the canonical JSON of :meth:`as_dict`, first 16 hex digits."""
+        text = json.dumps(self.as_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()[:HASH_CHARS]
+
+    def __hash__(self) -> int:
+        return hash(self.hash)
+
+    @property
+    def batch_key(self) -> str:
+        """Equal for specs that run as rigs of one batch: all but :data:`PER_RIG_FIELDS` equal."""
+        return json.dumps({k: v for k, v in self.as_dict().items() if k not in PER_RIG_FIELDS}, sort_keys=True)
+
+    def replace(self, **changes: Any) -> RunSpec:
+        return dataclasses.replace(self, **changes)
+
+    # -- what it builds ----------------------------------------------------------------------------
+
+    @property
+    def control_period_s(self) -> float:
+        return self.control_period_us * 1e-6
+
+    @property
+    def physics_step_s(self) -> float:
+        return self.physics_step_us * 1e-6
+
+    def scenario_schedule(self) -> Scenario:
+        """The test schedule: the named scenario with this spec's loads, start height and duration."""
+        scenario = comparison_scenarios()[self.scenario]
+        changes: dict[str, Any] = {}
+        if self.loads is not None:
+            changes["loads"] = tuple(LoadStep(kg, height) for kg, height in self.loads)
+        if self.descent_height_m is not None:
+            changes["descent_height_m"] = self.descent_height_m
+        if changes:
+            changes["name"] = "custom"
+        if self.duration_s is not None:
+            changes["duration_s"] = self.duration_s
+        return dataclasses.replace(scenario, **changes) if changes else scenario
+
+    def rig_params(self) -> RigParams:
+        """The nominal rig: the paper's with this spec's overrides."""
+        return with_overrides(RigParams(), self.overrides)
+
+    def imperfection_flags(self) -> Imperfections:
+        return Imperfections(**self.imperfections)
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """The keyword arguments of ``MicroGravityLandingEnv`` (and the batch's core) for this spec."""
+        return {
+            "scenario": self.scenario_schedule(),
+            "control_period_s": self.control_period_s,
+            "physics_step_s": self.physics_step_s,
+            "imperfections": self.imperfection_flags(),
+            "domain_randomization": self.randomize or None,
+            "params": self.rig_params(),
+        }
+
+
+def _overrides(values: object) -> dict[str, Any]:
+    """Dotted rig parameters, each value of its default's type (so 100 and 100.0 hash alike)."""
+    validate.instance("RunSpec.overrides", values, Mapping)
+    defaults = parameter_paths()
+    out = {}
+    for path, value in sorted(values.items()):
+        if path not in defaults:
+            raise ValueError(f"RunSpec.overrides: unknown parameter {path!r}; known: {', '.join(sorted(defaults))}")
+        kind = type(defaults[path])
+        if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+            raise ValueError(f"RunSpec.overrides: {path} must be a {kind.__name__}, got {value!r}")
+        if kind is float and not math.isfinite(value):
+            raise ValueError(f"RunSpec.overrides: {path} must be finite, got {value!r}")
+        out[path] = value
+    with_overrides(RigParams(), out)  # the parameters' own checks name a bad value now
+    return out
+
+
+def _named_floats(name: str, values: object, known: list[str]) -> dict[str, float]:
+    validate.instance(name, values, Mapping)
+    out = {}
+    for key, value in sorted(values.items()):
+        if key not in known:
+            raise ValueError(f"{name}: unknown field {key!r}; known: {', '.join(known)}")
+        out[key] = validate.finite(f"{name}.{key}", value)
+    return out
+
+
+def _named_flags(values: object, known: list[str]) -> dict[str, bool]:
+    validate.instance("RunSpec.imperfections", values, Mapping)
+    out = {}
+    for key, value in sorted(values.items()):
+        if key not in known:
+            raise ValueError(f"RunSpec.imperfections: unknown imperfection {key!r}; known: {', '.join(known)}")
+        out[key] = validate.instance(f"RunSpec.imperfections.{key}", value, bool)
+    return out
+
+
+def _loads(values: object) -> tuple[tuple[float, float | None], ...]:
+    if not isinstance(values, tuple | list) or not values:
+        raise ValueError(f"RunSpec.loads must be a non-empty list of (kg, height m or None), got {values!r}")
+    out = []
+    for load in values:
+        if not isinstance(load, tuple | list) or len(load) != 2:
+            raise ValueError(f"RunSpec.loads item must be (kg, height m or None), got {load!r}")
+        mass = validate.finite("RunSpec.loads kg", load[0])
+        height = None if load[1] is None else validate.finite("RunSpec.loads height", load[1])
+        out.append((mass, height))
+    return tuple(out)

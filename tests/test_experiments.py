@@ -1,0 +1,314 @@
+"""RunSpec, the one runner, campaign files, the result store and campaigns on Ray (local and a
+separately started cluster)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from microg_env.analysis.metrics import RunMetrics
+from microg_env.experiments.campaign import Campaign
+from microg_env.experiments.runner import run, run_all
+from microg_env.experiments.spec import RunSpec
+from microg_env.experiments.store import ResultStore, result_row
+
+MICROG = [sys.executable, "-m", "microg_env.cli"]
+SHORT = {"scenario": "condition-2", "duration_s": 0.3}
+
+
+def test_spec_hash_is_content_only_and_stable_across_processes():
+    spec = RunSpec(overrides={"servo.speed_loop_gain_hz": 150, "qzs.guide_friction_n": 0.15}, seed=7)
+    same = RunSpec(seed=7, overrides={"qzs.guide_friction_n": 0.15, "servo.speed_loop_gain_hz": 150.0})
+    assert spec.hash == same.hash
+    assert spec == same
+    assert len(spec.hash) == 16
+    assert RunSpec.from_dict(json.loads(json.dumps(spec.as_dict()))) == spec
+    changed = [
+        spec.replace(seed=8),
+        spec.replace(controller="feedforward"),
+        spec.replace(overrides={"servo.speed_loop_gain_hz": 150.0}),
+        spec.replace(gains={"ki_per_s2": 5000.0}),
+        spec.replace(imperfections={"friction": False}),
+        spec.replace(randomize=True),
+        spec.replace(control_period_us=500),
+        spec.replace(physics_step_us=50),
+        spec.replace(duration_s=3.0),
+        spec.replace(loads=((0.3, None),)),
+        spec.replace(descent_height_m=0.05),
+        spec.replace(scenario="condition-3"),
+    ]
+    assert len({s.hash for s in changed} | {spec.hash}) == len(changed) + 1
+    code = (
+        "from microg_env.experiments.spec import RunSpec;"
+        "print(RunSpec(seed=7, overrides={'servo.speed_loop_gain_hz': 150, 'qzs.guide_friction_n': 0.15}).hash)"
+    )
+    other = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert other.stdout.strip() == spec.hash
+
+
+@pytest.mark.parametrize(
+    ("fields", "named"),
+    [
+        ({"scenario": "condition-9"}, "RunSpec.scenario"),
+        ({"overrides": {"servo.speed_loop_hz": 100.0}}, "unknown parameter 'servo.speed_loop_hz'"),
+        ({"overrides": {"servo.speed_loop_gain_hz": "fast"}}, "servo.speed_loop_gain_hz must be a float"),
+        ({"overrides": {"servo.speed_loop_gain_hz": -5.0}}, "speed_loop_gain_hz"),
+        ({"gains": {"kq": 1.0}}, "RunSpec.gains: unknown field 'kq'"),
+        ({"imperfections": {"friction": "no"}}, "RunSpec.imperfections.friction"),
+        ({"control_period_us": 0}, "RunSpec.control_period_us"),
+        ({"loads": ((0.0001, None),)}, "LoadStep.mass_kg"),
+        ({"seed": -1}, "RunSpec.seed"),
+        ({"colour": "red"}, "unknown run spec field 'colour'"),
+    ],
+)
+def test_a_bad_spec_is_refused_naming_the_value(fields, named):
+    with pytest.raises(ValueError, match=named.replace("(", r"\(").replace(".", r"\.")):
+        RunSpec.from_dict(fields)
+
+
+def test_run_and_run_many_give_the_same_runs_and_a_bad_run_is_recorded():
+    """One spec, on the single env (run) and as a rig of a batch (run_many) with others beside it,
+    gives the same metrics to the last bit; a spec whose controller cannot be made fails alone."""
+    base = RunSpec(**SHORT, seed=3, overrides={"servo.speed_loop_gain_hz": 150.0, "servo.speed_integral_time_s": 0.007})
+    specs = [
+        base,
+        base.replace(controller="feedforward", seed=4),
+        base.replace(gains={"ki_per_s2": 5000.0}),
+        RunSpec(**SHORT, controller="residual-ppo", control_period_us=500),  # trained at 1000 us only
+    ]
+    results = run_all(specs)
+    assert [r.ok for r in results] == [True, True, True, False]
+    assert "1000 us" in results[3].error
+    for spec, together in zip(specs[:3], results[:3], strict=True):
+        alone = run(spec)
+        assert alone.metrics.as_dict() == together.metrics.as_dict()
+        assert together.versions["mujoco"]
+        assert together.spec is spec
+    gains_differ = results[0].metrics.flexible_unit_excursion_free_fall_m
+    assert gains_differ != results[2].metrics.flexible_unit_excursion_free_fall_m
+
+
+def test_accelerometer_bias_reads_straight_into_the_accelerometers_descent():
+    """The PID never reads the accelerometer: a bias b moves the accelerometer's descent by b exactly
+    and leaves the rig's motion (the position fit) unchanged."""
+    spec = RunSpec("condition-2", duration_s=2.5)
+    plain, biased = run_all([spec, spec.replace(overrides={"sensors.accelerometer_bias_m_s2": 4.2e-4})])
+    a, b = plain.metrics, biased.metrics
+    assert b.descent_accel_m_s2 == a.descent_accel_m_s2
+    assert b.accelerometer_descent_accel_m_s2[0] - a.accelerometer_descent_accel_m_s2[0] == pytest.approx(
+        4.2e-4, abs=1e-12
+    )
+    assert a.accelerometer_descent_accel_m_s2[0] == pytest.approx(a.descent_accel_m_s2[0], abs=0.3e-3)
+
+
+def test_campaign_expands_grid_linked_keys_samples_and_seeds(tmp_path):
+    path = tmp_path / "c.yml"
+    path.write_text(
+        "name: t\n"
+        "base: {scenario: condition-2, duration_s: 0.3}\n"
+        "sweep:\n"
+        "  controller: [pid, feedforward]\n"
+        "  qzs.guide_friction_n, qzs.guide_static_friction_n: [[0.1, 0.15], [0.4, 0.5]]\n"
+        "  gains.ki_per_s2: [5000, 10000]\n"
+        "samples: {count: 3, seed: 1, draw: {pad.stiffness_n_per_m: {uniform: [4666, 9387]}}}\n"
+        "seeds: {first: 10, count: 2}\n"
+    )
+    campaign = Campaign.load(path)
+    runs = campaign.runs()
+    assert len(runs) == 2 * 2 * 2 * 3 * 2
+    assert len({r.spec.hash for r in runs}) == len(runs)
+    assert campaign.columns == (
+        "controller",
+        "qzs.guide_friction_n",
+        "qzs.guide_static_friction_n",
+        "gains.ki_per_s2",
+        "pad.stiffness_n_per_m",
+    )
+    first = runs[0].spec
+    assert first.overrides["qzs.guide_static_friction_n"] == 0.15
+    assert first.gains == {"ki_per_s2": 5000.0}
+    stiffness = [r.columns["pad.stiffness_n_per_m"] for r in runs[:6:2]]
+    assert all(4666 <= k <= 9387 for k in stiffness)
+    assert len(set(stiffness)) == 3
+    assert [r.spec.hash for r in Campaign.load(path).runs()] == [r.spec.hash for r in runs]  # draws repeat
+
+
+@pytest.mark.parametrize(
+    ("text", "named"),
+    [
+        ("base: {}\n", "name must be a non-empty string"),
+        ("name: t\nsweep: {servo.speed_loop_hz: [1]}\n", "'servo.speed_loop_hz' is neither"),
+        ("name: t\nsweep: {qzs.guide_friction_n: [0.4]}\n", "guide_static_friction_n"),
+        ("name: t\nsweep: {controller: []}\n", "sweep: controller must be a non-empty list"),
+        ("name: t\nsamples: {count: 2, draw: {pad.stiffness_n_per_m: {gauss: [1, 2]}}}\n", "unknown distribution"),
+        ("name: t\nseeds: [1, 1]\n", "seeds repeat"),
+        ("name: t\nreport: nope\n", "report"),
+        ("name: t\nsweeps: {}\n", "unknown key 'sweeps'"),
+        ("name: [t\n", "not valid YAML"),
+    ],
+)
+def test_a_bad_campaign_file_exits_2_naming_the_fault(tmp_path, text, named):
+    path = tmp_path / "bad.yml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=r"bad\.yml"):
+        Campaign.load(path)
+    done = subprocess.run(
+        [*MICROG, "campaign", str(path), "--out", str(tmp_path / "out")], capture_output=True, text=True
+    )
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr
+    assert named in done.stderr
+    assert done.stderr.count("\n") == 1
+    assert not (tmp_path / "out").exists()
+
+
+def test_store_keeps_one_row_per_run_and_a_retry_supersedes_a_failure(tmp_path):
+    spec = RunSpec(**SHORT)
+    store = ResultStore(tmp_path)
+    failed = result_row(run_all([spec.replace(controller="residual-ppo", control_period_us=500)])[0], {"k": 1})
+    ok = result_row(run_all([spec])[0], {"k": 2})
+    store.write([failed | {"spec_hash": spec.hash}])
+    assert store.statuses() == {spec.hash: "failed"}
+    store.write([ok])
+    store.write([failed | {"spec_hash": spec.hash}])  # an ok row is never replaced by a failure
+    table = store.export(tmp_path / "results.parquet", [spec.hash])
+    assert table.num_rows == 1
+    assert table.column("status").to_pylist() == ["ok"]
+    row = pq.read_table(tmp_path / "results.parquet").to_pylist()[0]
+    for name in RunMetrics.__dataclass_fields__:
+        assert name in row
+    assert row["k"] == 2
+    assert json.loads(row["spec"]) == spec.as_dict()
+
+
+CAMPAIGN_200 = """\
+name: resume-test
+base: {scenario: condition-2, duration_s: 0.4}
+sweep:
+  qzs.guide_friction_n, qzs.guide_static_friction_n: [[0.1, 0.125], [0.2, 0.25], [0.3, 0.375], [0.4, 0.5], [0.5, 0.625]]
+  controller: [pid, feedforward, residual-ppo]
+  control_period_us: [1000, 500]
+seeds: {first: 0, count: 7}
+batch_size: 4
+"""
+
+
+@pytest.mark.slow
+def test_a_campaign_of_210_runs_on_local_ray_is_interrupted_and_resumed_with_nothing_recomputed(tmp_path):
+    """210 runs (35 of them fail: residual-ppo refuses 500 us). Ctrl-C after the first stored batch
+    exits 130 with every finished row kept; the same command then runs only what is missing, and
+    the table holds one row per run with every metric."""
+    path, out = tmp_path / "c.yml", tmp_path / "out"
+    path.write_text(CAMPAIGN_200)
+    command = [*MICROG, "campaign", str(path), "--out", str(out), "--json", "--quiet"]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list((out / "runs").glob("part-*.parquet")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    assert "interrupted" in stderr
+    assert "Traceback" not in stderr
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("part-*.parquet")}
+    stored = ResultStore(out).statuses()
+    assert 0 < len(stored) < 210
+    assert not list((out / "runs").glob(".*"))  # no half-written file
+
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    stored_ok = sum(status == "ok" for status in stored.values())
+    assert summary["runs"] == 210
+    assert summary["skipped"] == stored_ok
+    assert summary["done"] + summary["failed"] == 210 - stored_ok
+    assert summary["failed"] == 35
+    for name, mtime in before.items():  # nothing stored was rewritten
+        assert (out / "runs" / name).stat().st_mtime_ns == mtime
+    table = pq.read_table(out / "results.parquet")
+    assert table.num_rows == 210
+    assert len(set(table.column("spec_hash").to_pylist())) == 210
+    for name in [*RunMetrics.__dataclass_fields__, "qzs.guide_friction_n", "controller", "control_period_us"]:
+        assert name in table.column_names
+    rows = table.to_pylist()
+    failed = [r for r in rows if r["status"] == "failed"]
+    assert len(failed) == 35
+    assert all("1000 us" in r["error"] for r in failed)
+    assert all(r["controller"] == "residual-ppo" and r["control_period_us"] == 500 for r in failed)
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert all(np.isfinite(r["flexible_unit_excursion_free_fall_m"]) for r in ok)
+
+    again = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert json.loads(again.stdout)["skipped"] == 175  # the failed runs are tried again
+
+
+@pytest.mark.slow
+def test_a_campaign_runs_on_a_ray_cluster_started_separately(tmp_path):
+    """``ray start --head`` in its own process, then ``microg campaign --address``; the cluster is
+    stopped after (``ray stop``)."""
+    ray = Path(sys.executable).with_name("ray")
+    path, out = tmp_path / "c.yml", tmp_path / "out"
+    path.write_text(
+        "name: cluster\nbase: {scenario: condition-2, duration_s: 0.3}\n"
+        "sweep: {controller: [pid, feedforward]}\nseeds: {first: 0, count: 4}\nbatch_size: 2\n"
+    )
+    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
+    port = "6391"
+    subprocess.run(
+        [
+            str(ray),
+            "start",
+            "--head",
+            f"--port={port}",
+            "--num-cpus=2",
+            "--include-dashboard=false",
+            "--disable-usage-stats",
+        ],
+        check=True,
+        capture_output=True,
+        env=env,
+        timeout=120,
+    )
+    try:
+        done = subprocess.run(
+            [*MICROG, "campaign", str(path), "--out", str(out), "--address", f"127.0.0.1:{port}", "--json", "--quiet"],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env=env,
+        )
+        assert done.returncode == 0, done.stderr
+        assert json.loads(done.stdout)["done"] == 8
+        status = subprocess.run(
+            [str(ray), "status", f"--address=127.0.0.1:{port}"],
+            capture_output=True,
+            text=True,
+            env=env | {"RAY_AUTH_MODE": "token"},  # ray start's default: token authentication
+        )
+        assert status.returncode == 0  # the cluster outlives the campaign: it was not the driver's own
+    finally:
+        subprocess.run([str(ray), "stop", "--force"], capture_output=True, env=env, timeout=120)
+    assert pq.read_table(out / "results.parquet").num_rows == 8
+
+
+def test_campaign_address_that_does_not_answer_exits_2(tmp_path):
+    path = tmp_path / "c.yml"
+    path.write_text("name: t\nbase: {scenario: condition-2, duration_s: 0.1}\n")
+    done = subprocess.run(
+        [*MICROG, "campaign", str(path), "--out", str(tmp_path / "o"), "--address", "127.0.0.1:1"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr
+    assert "--address" in done.stderr
