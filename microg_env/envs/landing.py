@@ -116,9 +116,8 @@ class MicroGravityLandingEnv(gym.Env):
     | ``render_mode``, ``width``, ``height``, ``camera_name`` | None, 640, 480, "side" | rendering |
 
     ``info`` carries the reward and the true physical state: ``time_s``, ``x_m``,
-    ``foot_height_m``, ``lander_velocity_m_s``, ``lander_accel_m_s2``, ``accelerometer_m_s2`` (its reading),
-    ``support_position_m``,
-    ``support_velocity_m_s``, ``support_force_deviation_n``, ``pad_force_n``, ``placed_load_kg``,
+    ``foot_height_m``, ``lander_velocity_m_s``, ``lander_accel_m_s2``, ``accelerometer_m_s2`` (what
+    the accelerometer reads), ``support_position_m``, ``support_velocity_m_s``, ``support_force_deviation_n``, ``pad_force_n``, ``placed_load_kg``,
     ``stage``, ``command_m_s`` (the speed command the drive received), ``setpoint_m``,
     ``servo_torque_n_m``, ``compensation_error``, ``reward_x`` and ``termination_reason``.
 
