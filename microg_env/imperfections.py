@@ -36,7 +36,8 @@ class Imperfections:
     friction: bool = True
     #: Motor cogging torque (0.5 % of rated, 72 cycles per revolution).
     cogging: bool = True
-    #: Noise and quantisation of grating ruler, encoder, accelerometer and pad force sensor.
+    #: Noise and quantisation of grating ruler, encoder, accelerometer and pad force sensor, and the
+    #: accelerometer's bias (SensorParams). Off: every sensor reads the truth.
     sensor_noise: bool = True
     #: The speed command reaches the drive one control period late (sampling plus fieldbus).
     control_delay: bool = True

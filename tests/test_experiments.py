@@ -145,7 +145,7 @@ def test_campaign_expands_grid_linked_keys_samples_and_seeds(tmp_path):
 @pytest.mark.parametrize(
     ("text", "named"),
     [
-        ("base: {}\n", "name must be a non-empty string"),
+        ("base: {}\n", "name must be letters"),
         ("name: t\nsweep: {servo.speed_loop_hz: [1]}\n", "'servo.speed_loop_hz' is neither"),
         ("name: t\nsweep: {qzs.guide_friction_n: [0.4]}\n", "guide_static_friction_n"),
         ("name: t\nsweep: {controller: []}\n", "sweep: controller must be a non-empty list"),
@@ -154,6 +154,17 @@ def test_campaign_expands_grid_linked_keys_samples_and_seeds(tmp_path):
         ("name: t\nreport: nope\n", "report"),
         ("name: t\nsweeps: {}\n", "unknown key 'sweeps'"),
         ("name: [t\n", "not valid YAML"),
+        ("name: t\nbase: {controller: feedfoward}\n", "got 'feedfoward'"),
+        ("name: t\nbase: {seed: 3}\n", "give seeds in seeds:"),
+        ("name: t\nsweep: {1: [2]}\n", "keys must be names"),
+        ("name: t\nbase: {overrides: null}\nsweep: {qzs.guide_friction_n: [0.1]}\n", "overrides must be a mapping"),
+        ("name: t\nreport: fifty-gram-floor\n", "needs qzs.guide_friction_n"),
+        ("name: ../up\n", "name must be letters"),
+        ("name: t\nsweep: {control_period_us: [150]}\n", "whole number of physics steps"),
+        (
+            "name: t\nsweep: {a: [1, 2], b: [1, 2]}\nsamples: {count: 1000000, draw: {c: {uniform: [0, 1]}}}\n",
+            "runs, more than",
+        ),
     ],
 )
 def test_a_bad_campaign_file_exits_2_naming_the_fault(tmp_path, text, named):
@@ -169,6 +180,50 @@ def test_a_bad_campaign_file_exits_2_naming_the_fault(tmp_path, text, named):
     assert named in done.stderr
     assert done.stderr.count("\n") == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_pid_retuned_picks_the_best_robust_candidate_on_the_specs_own_rig():
+    """The re-tune scores every candidate with its doubled gains on the spec's rig (a 1 kg weight from
+    20 mm, touchdown at 1.6 s) and picks the cheapest that survives doubling; the run uses and
+    reports those gains."""
+    from microg_env.experiments.tuning import RETUNE_KI, candidate_gains, omega0_squared, retune, score
+
+    spec = RunSpec("condition-2", "pid-retuned", seed=1000, descent_height_m=0.02, duration_s=3.0)
+    chosen = retune(spec)
+    schedule = spec.replace(controller="pid")
+    w0 = omega0_squared(schedule)
+    candidates = [candidate_gains(ki, zeta, 0.0, False, w0) for ki in RETUNE_KI for zeta in (0.5, 0.7, 1.0)]
+    scored = score(candidates, [schedule])
+    robust = [c for c in scored if c.robust and np.isfinite(c.cost)]
+    assert robust
+    assert chosen == min(robust, key=lambda c: c.cost)
+    (result,) = run_all([spec])
+    assert result.ok
+    assert result.tuned_gains == chosen.gains_dict()
+    by_hand = run(spec.replace(controller="pid", gains=chosen.gains_dict()))
+    assert result.metrics.as_dict() == by_hand.metrics.as_dict()
+
+
+def test_a_batch_that_fails_midway_fails_only_its_unfinished_runs(monkeypatch):
+    from microg_env.analysis import batch
+
+    monkeypatch.setattr(batch, "MAX_BATCH", 1)  # one rig per batch: three batches
+    real, calls = batch._run_chunk, []
+
+    def second_fails(*args):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("worker lost")
+        return real(*args)
+
+    monkeypatch.setattr(batch, "_run_chunk", second_fails)
+    specs = [RunSpec(**SHORT, seed=s) for s in range(3)]
+    seen = []
+    from microg_env.experiments.runner import run_many
+
+    for part in run_many(specs):
+        seen += [(i, r.ok) for i, r in part]
+    assert sorted(seen) == [(0, True), (1, False), (2, False)]
 
 
 def test_store_keeps_one_row_per_run_and_a_retry_supersedes_a_failure(tmp_path):
@@ -312,3 +367,19 @@ def test_campaign_address_that_does_not_answer_exits_2(tmp_path):
     assert done.returncode == 2
     assert "Traceback" not in done.stderr
     assert "--address" in done.stderr
+
+
+def test_campaign_refuses_zero_cpus_and_a_folder_of_another_campaign(tmp_path):
+    path, out = tmp_path / "c.yml", tmp_path / "out"
+    path.write_text("name: mine\nbase: {scenario: condition-2, duration_s: 0.1}\n")
+    zero = subprocess.run(
+        [*MICROG, "campaign", str(path), "--out", str(out), "--num-cpus", "0"], capture_output=True, text=True
+    )
+    assert zero.returncode == 2
+    assert "--num-cpus must be at least 1" in zero.stderr
+    out.mkdir()
+    (out / "campaign.json").write_text(json.dumps({"name": "theirs"}))
+    other = subprocess.run([*MICROG, "campaign", str(path), "--out", str(out)], capture_output=True, text=True)
+    assert other.returncode == 2
+    assert "holds the results of campaign 'theirs'" in other.stderr
+    assert json.loads((out / "campaign.json").read_text()) == {"name": "theirs"}

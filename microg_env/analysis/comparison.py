@@ -225,7 +225,7 @@ def compare(
     for batch in run_many(specs, workers, progress, keep_trajectories=True):
         for i, result in batch:  # only the batch's trajectories are held, never every run's
             if not result.ok:
-                raise RuntimeError(f"{cases[i]}: {result.error}")
+                raise ValueError(f"{cases[i].controller} on {cases[i].scenario}, seed {cases[i].seed}: {result.error}")
             results[i] = _result(cases[i], result.metrics, result.trajectory, keep_x=cases[i].seed == seed_list[0])
     comparison.results.extend(results)
     return comparison

@@ -15,7 +15,7 @@ DEFAULT_CAMPAIGN_ROOT = "results/campaigns"
 
 def _cmd_campaign(args: argparse.Namespace) -> int:
     from microg_env.experiments.campaign import Campaign
-    from microg_env.experiments.distributed import check_address
+    from microg_env.experiments.distributed import check_address, check_folder
 
     if args.address is not None:
         if not args.address.strip():
@@ -40,6 +40,9 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
     if Path(out).exists() and not Path(out).is_dir():
         raise ValueError(f"--out {out!r} exists and is not a folder")
     check_writable_folder(out, "--out")
+    if args.num_cpus is not None and args.num_cpus < 1:
+        raise ValueError(f"--num-cpus must be at least 1, got {args.num_cpus}")
+    check_folder(campaign, Path(out))
     with tqdm(
         total=0, unit="run", desc=f"campaign {campaign.name}", file=ProgressStream(sys.stderr), disable=args.quiet
     ) as bar:

@@ -146,7 +146,7 @@ class LandingCore:
         self.base_params = RigParams() if params is None else params
         validate.instance("params", self.base_params, RigParams)
         self.physics_step_s = check_physics_step(physics_step_s)
-        self.control_period_s = _check_control_period(control_period_s, self.physics_step_s)
+        self.control_period_s = check_control_period(control_period_s, self.physics_step_s)
         self.frame_skip = round(self.control_period_s / self.physics_step_s)
         self.decision_period = validate.integer("decision_period", decision_period, 1, 1000)
         self.action_mode = validate.choice("action_mode", action_mode, ACTION_MODES)
@@ -532,7 +532,8 @@ def _randomization(value: DomainRandomization | Mapping | bool | None) -> Domain
     return validate.instance("domain_randomization", value, DomainRandomization)
 
 
-def _check_control_period(control_period_s: float, physics_step_s: float) -> float:
+def check_control_period(control_period_s: float, physics_step_s: float) -> float:
+    """``control_period_s`` if the RTX timer offers it and it is a whole number of physics steps."""
     low, high = CONTROL_PERIOD_RANGE_S
     period = validate.positive("control_period_s", control_period_s, "s")
     if not low - 1e-12 <= period <= high + 1e-12:

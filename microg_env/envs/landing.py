@@ -117,9 +117,10 @@ class MicroGravityLandingEnv(gym.Env):
 
     ``info`` carries the reward and the true physical state: ``time_s``, ``x_m``,
     ``foot_height_m``, ``lander_velocity_m_s``, ``lander_accel_m_s2``, ``accelerometer_m_s2`` (what
-    the accelerometer reads), ``support_position_m``, ``support_velocity_m_s``, ``support_force_deviation_n``, ``pad_force_n``, ``placed_load_kg``,
-    ``stage``, ``command_m_s`` (the speed command the drive received), ``setpoint_m``,
-    ``servo_torque_n_m``, ``compensation_error``, ``reward_x`` and ``termination_reason``.
+    the accelerometer reads), ``support_position_m``, ``support_velocity_m_s``,
+    ``support_force_deviation_n``, ``pad_force_n``, ``placed_load_kg``, ``stage``, ``command_m_s``
+    (the speed command the drive received), ``setpoint_m``, ``servo_torque_n_m``,
+    ``compensation_error``, ``reward_x`` and ``termination_reason``.
 
     Copies (``pickle``, ``cloudpickle``, ``copy.deepcopy``) carry the episode: a copy made mid-episode
     continues exactly as the original would.

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -50,6 +51,8 @@ DISTRIBUTIONS = {
     "normal": "[mean, standard deviation]",
     "choice": "[a list of values]",
 }
+#: What a campaign's name may be (it names its default folder).
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 #: Most runs one campaign may hold.
 MAX_RUNS = 1_000_000
 _TOP_KEYS = ("name", "description", "base", "sweep", "samples", "seeds", "report", "batch_size")
@@ -107,13 +110,22 @@ class Campaign:
         if unknown:
             raise ValueError(f"unknown key {unknown[0]!r}; known: {', '.join(_TOP_KEYS)}")
         name = data.get("name")
-        if not isinstance(name, str) or not name.strip():
-            raise ValueError(f"name must be a non-empty string, got {name!r}")
+        if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
+            raise ValueError(f"name must be letters, digits, '.', '_' or '-' (a folder name), got {name!r}")
         base = data.get("base") or {}
         validate.instance("base", base, Mapping)
+        _check_keys("base", base)
+        if "seed" in base:
+            raise ValueError("base: give seeds in seeds:, not seed")
+        for key in ("overrides", "gains", "imperfections"):
+            if key in base and not isinstance(base[key], Mapping):
+                raise ValueError(f"base: {key} must be a mapping, got {base[key]!r}")
         sweep = data.get("sweep") or {}
         validate.instance("sweep", sweep, Mapping)
+        _check_keys("sweep", sweep)
         for key, values in sweep.items():
+            if "seed" in _keys(key):
+                raise ValueError("sweep: give seeds in seeds:, not seed")
             if not isinstance(values, list) or not values:
                 raise ValueError(f"sweep: {key} must be a non-empty list, got {values!r}")
             keys = _keys(key)
@@ -123,10 +135,6 @@ class Campaign:
         if samples is not None:
             _check_samples(samples)
         report = data.get("report")
-        if report is not None:
-            from microg_env.experiments.studies import STUDIES
-
-            validate.choice("report", report, tuple(STUDIES))
         batch_size = validate.integer("batch_size", data.get("batch_size", DEFAULT_BATCH_SIZE), 1, 256)
         campaign = cls(
             name.strip(),
@@ -138,6 +146,13 @@ class Campaign:
             report,
             batch_size,
         )
+        if report is not None:
+            from microg_env.experiments.studies import STUDIES, STUDY_COLUMNS
+
+            validate.choice("report", report, tuple(STUDIES))
+            missing = [c for c in STUDY_COLUMNS[report] if c not in campaign.columns]
+            if missing:
+                raise ValueError(f"report {report!r} needs {', '.join(missing)} swept or sampled")
         campaign.runs()  # every run's spec is checked now, before anything starts
         return campaign
 
@@ -149,6 +164,10 @@ class Campaign:
 
     def runs(self) -> list[Run]:
         """Every run: grid points x samples x seeds, in that nesting order."""
+        draws = self.samples["count"] if self.samples else 1
+        total = math.prod(len(v) for v in self.sweep.values()) * draws * len(self.seeds)
+        if total > MAX_RUNS:
+            raise ValueError(f"{total} runs, more than {MAX_RUNS}")
         points = []
         for values in itertools.product(*self.sweep.values()):
             point = {}
@@ -157,9 +176,6 @@ class Campaign:
                 point |= dict(zip(keys, value, strict=True)) if len(keys) > 1 else {key: value}
             points.append(point)
         draws = _draws(self.samples) if self.samples else [{}]
-        total = len(points) * len(draws) * len(self.seeds)
-        if total > MAX_RUNS:
-            raise ValueError(f"{total} runs, more than {MAX_RUNS}")
         out, seen = [], {}
         for point in points:
             for draw in draws:
@@ -172,6 +188,12 @@ class Campaign:
                     seen[spec.hash] = values
                     out.append(Run(spec, values))
         return out
+
+
+def _check_keys(where: str, mapping: Mapping) -> None:
+    for key in mapping:
+        if not isinstance(key, str):
+            raise ValueError(f"{where}: keys must be names (strings), got {key!r}")
 
 
 def _keys(key: str) -> list[str]:
@@ -201,7 +223,7 @@ def _spec_fields(base: Mapping[str, Any], values: Mapping[str, Any]) -> dict[str
             )
     try:
         RunSpec.from_dict(out)
-    except (ValueError, TypeError) as error:
+    except (ValueError, TypeError, AttributeError) as error:
         raise ValueError(f"at {dict(values)}: {error}") from None
     return out
 
@@ -232,6 +254,7 @@ def _check_samples(samples: object) -> None:
     draw = samples.get("draw")
     if not isinstance(draw, Mapping) or not draw:
         raise ValueError(f"samples.draw must map keys to distributions, got {draw!r}")
+    _check_keys("samples.draw", draw)
     for key, distribution in draw.items():
         if not isinstance(distribution, Mapping) or len(distribution) != 1:
             raise ValueError(

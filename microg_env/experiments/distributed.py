@@ -43,7 +43,6 @@ class CampaignSummary:
     done: int
     failed: int
     skipped: int
-    interrupted: bool
     folder: Path
     results: Path
     report: Path | None
@@ -56,7 +55,6 @@ class CampaignSummary:
             "done": self.done,
             "failed": self.failed,
             "skipped": self.skipped,
-            "interrupted": self.interrupted,
             "folder": str(self.folder),
             "results": str(self.results),
             "report": None if self.report is None else str(self.report),
@@ -101,6 +99,7 @@ def execute(
 
     start = time.perf_counter()
     folder = Path(folder)
+    check_folder(campaign, folder)
     store = ResultStore(folder)
     runs = campaign.runs()
     stored = store.statuses()
@@ -109,7 +108,6 @@ def execute(
     folder.mkdir(parents=True, exist_ok=True)
     write_text(folder / CAMPAIGN_COPY, json.dumps(_campaign_record(campaign), indent=2) + "\n")
     done = failed = 0
-    interrupted = False
     if todo:
         if not ray.is_initialized():
             ray.init(
@@ -140,13 +138,11 @@ def execute(
                 if on_progress is not None:
                     on_progress(len(rows), len(todo))
         except KeyboardInterrupt:
-            interrupted = True
             for ref in pending:
                 ray.cancel(ref, force=True)
             raise
         finally:
-            if interrupted or not address:
-                ray.shutdown()
+            ray.shutdown()  # the driver's connection; a cluster given by --address runs on
             _finish(store, runs, folder)
     else:
         _finish(store, runs, folder)
@@ -161,12 +157,26 @@ def execute(
         done - failed,
         failed,
         skipped,
-        interrupted,
         folder,
         folder / RESULTS_FILE,
         report,
         time.perf_counter() - start,
     )
+
+
+def check_folder(campaign: Campaign, folder: Path) -> None:
+    """ValueError if ``folder`` holds another campaign's results (its name differs)."""
+    record = folder / CAMPAIGN_COPY
+    if record.is_file():
+        try:
+            name = json.loads(record.read_text(encoding="utf-8")).get("name")
+        except (ValueError, OSError, AttributeError):
+            name = None
+        if name != campaign.name:
+            raise ValueError(
+                f"--out {str(folder)!r} holds the results of campaign {name!r}, not {campaign.name!r}; "
+                "give another folder"
+            )
 
 
 def check_address(address: str) -> None:

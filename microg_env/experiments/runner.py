@@ -77,7 +77,7 @@ def run(
     from microg_env.envs.landing import MicroGravityLandingEnv
 
     start = time.perf_counter()
-    resolved, gains = _resolve_controller([spec])[0]
+    resolved, gains = _resolve_controller(spec, {})
     env = MicroGravityLandingEnv(**resolved.env_kwargs(), **(render or {}))
     try:
         controller = _controller(resolved)
@@ -103,33 +103,38 @@ def run_many(
     groups: dict[str, list[int]] = {}
     for i, spec in enumerate(specs):
         groups.setdefault(spec.batch_key, []).append(i)
+
+    def failed(i: int, error: BaseException) -> list[tuple[int, RunResult]]:
+        if progress is not None:
+            progress(1)
+        return [(i, RunResult(specs[i], None, _error_text(error)))]
+
     with contextlib.ExitStack() as stack:
         pool = stack.enter_context(ProcessPoolExecutor(max_workers=workers)) if workers > 1 else None
         for every in groups.values():
-            members = []
-            for i in every:  # a spec whose controller cannot be made fails alone, before any stepping
+            members, resolved, tuned = [], [], {}
+            for i in every:  # a spec whose controller cannot be made or tuned fails alone, before any stepping
                 try:
-                    if specs[i].controller != RETUNED_PID:
-                        _controller(specs[i])
-                    members.append(i)
+                    runnable, gains = _resolve_controller(specs[i], tuned)
+                    _controller(runnable)
                 except Exception as error:
-                    if progress is not None:
-                        progress(1)
-                    yield [(i, RunResult(specs[i], None, _error_text(error)))]
-            if not members:
-                continue
-            group = [specs[i] for i in members]
+                    yield failed(i, error)
+                    continue
+                members.append(i)
+                resolved.append((runnable, gains))
+            done: set[int] = set()
             start = time.perf_counter()
             try:
-                for batch in _run_group(group, workers, progress, pool):
+                for batch in _run_group([specs[i] for i in members], resolved, workers, progress, pool):
                     elapsed = (time.perf_counter() - start) / max(len(batch), 1)
                     start = time.perf_counter()
+                    done.update(members[i] for i, _ in batch)
                     yield [(members[i], _finished(result, elapsed, keep_trajectories)) for i, result in batch]
             except Exception as error:  # recorded per run: one bad batch must not stop a campaign
-                text = _error_text(error)
+                rest = [i for i in members if i not in done]
                 if progress is not None:
-                    progress(len(group))
-                yield [(i, RunResult(specs[i], None, text)) for i in members]
+                    progress(len(rest))
+                yield [(i, RunResult(specs[i], None, _error_text(error))) for i in rest]
 
 
 def run_all(specs: Sequence[RunSpec], workers: int = 1, **kwargs) -> list[RunResult]:
@@ -156,22 +161,17 @@ def _error_text(error: BaseException) -> str:
     return f"{type(error).__name__}: {error}{where}"
 
 
-def _resolve_controller(specs: Sequence[RunSpec]) -> list[tuple[RunSpec, dict[str, float]]]:
-    """Each spec as it runs: ``pid-retuned`` becomes ``pid`` with the gains the tuner chose on the
-    spec's rig and period (once for all specs of one rig), with those gains."""
-    tuned: dict[str, dict[str, float]] = {}
-    out = []
-    for spec in specs:
-        if spec.controller != RETUNED_PID:
-            out.append((spec, {}))
-            continue
-        if spec.batch_key not in tuned:
-            from microg_env.experiments.tuning import retune
+def _resolve_controller(spec: RunSpec, tuned: dict[str, dict[str, float]]) -> tuple[RunSpec, dict[str, float]]:
+    """``spec`` as it runs: ``pid-retuned`` becomes ``pid`` with the gains the tuner chose on the
+    spec's rig and period (kept in ``tuned`` by rig, so once per rig), and those gains."""
+    if spec.controller != RETUNED_PID:
+        return spec, {}
+    if spec.batch_key not in tuned:
+        from microg_env.experiments.tuning import retune
 
-            tuned[spec.batch_key] = retune(spec).gains_dict()
-        gains = tuned[spec.batch_key] | dict(spec.gains)
-        out.append((spec.replace(controller="pid", gains=gains), gains))
-    return out
+        tuned[spec.batch_key] = retune(spec).gains_dict()
+    gains = tuned[spec.batch_key] | dict(spec.gains)
+    return spec.replace(controller="pid", gains=gains), gains
 
 
 def _controller(spec: RunSpec):
@@ -186,10 +186,11 @@ def _reference(job: tuple) -> Trajectory:
     return simulate_reference(scenario, params, control_period_s, physics_step_s, duration_s)
 
 
-def _run_group(group: Sequence[RunSpec], workers: int, progress, pool) -> Iterator[list[tuple[int, RunResult]]]:
-    """One rig's specs: their batches, and one ideal reference per plant, schedule and length
-    (every controller on a seed meets the same plant)."""
-    resolved = _resolve_controller(group)
+def _run_group(
+    group: Sequence[RunSpec], resolved: Sequence[tuple[RunSpec, dict[str, float]]], workers: int, progress, pool
+) -> Iterator[list[tuple[int, RunResult]]]:
+    """One rig's specs (``resolved``: as they run) in batches, with one ideal reference per plant,
+    schedule and length (every controller on a seed meets the same plant)."""
     episodes = []
     for spec, _ in resolved:
         episodes.append(EpisodeSpec(spec.controller, spec.scenario_schedule(), spec.seed, tuple(spec.gains.items())))

@@ -20,9 +20,12 @@ from typing import Any
 
 from microg_env import validate
 from microg_env.controllers.pid import PIDGains
-from microg_env.imperfections import Imperfections
+from microg_env.controllers.registry import BASELINES, check_controller_name
+from microg_env.envs.core import check_control_period
+from microg_env.imperfections import IMPERFECTION_NAMES, Imperfections
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides
 from microg_env.scenarios import LoadStep, Scenario, comparison_scenarios
+from microg_env.sim.model import check_physics_step
 
 #: The controller that :mod:`microg_env.experiments.tuning` re-tunes on each spec's rig and period.
 RETUNED_PID = "pid-retuned"
@@ -58,15 +61,19 @@ class RunSpec:
         if self.scenario not in known:
             raise ValueError(f"RunSpec.scenario must be one of {', '.join(known)}, got {self.scenario!r}")
         validate.instance("RunSpec.controller", self.controller, str)
-        validate.integer("RunSpec.seed", self.seed, 0, 2**32 - 1)
-        validate.instance("RunSpec.randomize", self.randomize, bool)
+        if self.controller != RETUNED_PID:
+            check_controller_name(self.controller)
         set_ = object.__setattr__
+        set_(self, "seed", validate.integer("RunSpec.seed", self.seed, 0, 2**32 - 1))
+        validate.instance("RunSpec.randomize", self.randomize, bool)
         set_(self, "overrides", _overrides(self.overrides))
         set_(self, "gains", _named_floats("RunSpec.gains", self.gains, [f.name for f in fields(PIDGains)]))
-        flags = [f.name for f in fields(Imperfections)]
-        set_(self, "imperfections", _named_flags(self.imperfections, flags))
+        if self.gains and self.controller not in (*BASELINES, RETUNED_PID):
+            raise ValueError(f"RunSpec.gains: controller {self.controller!r} has no PID gains to replace")
+        set_(self, "imperfections", _named_flags(self.imperfections, list(IMPERFECTION_NAMES)))
         set_(self, "control_period_us", validate.positive("RunSpec.control_period_us", self.control_period_us, "us"))
         set_(self, "physics_step_us", validate.positive("RunSpec.physics_step_us", self.physics_step_us, "us"))
+        check_control_period(self.control_period_s, check_physics_step(self.physics_step_s))
         if self.duration_s is not None:
             set_(self, "duration_s", validate.positive("RunSpec.duration_s", self.duration_s, "s"))
         if self.descent_height_m is not None:
@@ -161,7 +168,8 @@ class RunSpec:
 
 
 def _overrides(values: object) -> dict[str, Any]:
-    """Dotted rig parameters, each value of its default's type (so 100 and 100.0 hash alike)."""
+    """Dotted rig parameters, each value of its default's type (so 100 and 100.0 hash alike); a
+    value equal to the default is dropped (the same run hashes alike however it is written)."""
     validate.instance("RunSpec.overrides", values, Mapping)
     defaults = parameter_paths()
     out = {}
@@ -175,7 +183,8 @@ def _overrides(values: object) -> dict[str, Any]:
             raise ValueError(f"RunSpec.overrides: {path} must be a {kind.__name__}, got {value!r}")
         if kind is float and not math.isfinite(value):
             raise ValueError(f"RunSpec.overrides: {path} must be finite, got {value!r}")
-        out[path] = value
+        if value != defaults[path]:
+            out[path] = value
     with_overrides(RigParams(), out)  # the parameters' own checks name a bad value now
     return out
 
@@ -196,7 +205,8 @@ def _named_flags(values: object, known: list[str]) -> dict[str, bool]:
     for key, value in sorted(values.items()):
         if key not in known:
             raise ValueError(f"RunSpec.imperfections: unknown imperfection {key!r}; known: {', '.join(known)}")
-        out[key] = validate.instance(f"RunSpec.imperfections.{key}", value, bool)
+        if not validate.instance(f"RunSpec.imperfections.{key}", value, bool):  # on is the default
+            out[key] = False
     return out
 
 

@@ -14,9 +14,12 @@ import numpy as np
 from microg_env.analysis.plots import figure_class, save_figure
 from microg_env.experiments.tuning import RETUNE_KI
 from microg_env.files import write_text
+from microg_env.paper.tables import CONDITIONS
 
 #: The paper's 50 g stage (Table 4): measured -0.38 mm/s^2 against the ideal -0.79 (Table 2).
-PAPER_FIFTY_GRAM_MM_S2 = -0.38
+PAPER_FIFTY_GRAM_MM_S2 = CONDITIONS[3].measured_descent_accel_mm_s2[0]
+#: Standard gravity, the g of an accelerometer's bias in ug, m/s^2.
+STANDARD_GRAVITY_M_S2 = 9.80665
 #: The page of a campaign folder.
 REPORT_FILE = "report.md"
 
@@ -37,7 +40,7 @@ def _fmt(value: float, spec: str) -> str:
     return "–" if value is None or not math.isfinite(value) else format(value, spec)
 
 
-def _header(campaign, table, folder: Path, command: str) -> list[str]:
+def _header(campaign, table, command: str) -> list[str]:
     failed = sum(status != "ok" for status in table.column("status").to_pylist()) if table.num_rows else 0
     return [
         f"# {campaign.description.splitlines()[0] if campaign.description else campaign.name}",
@@ -82,7 +85,7 @@ def period_bandwidth(campaign, table, folder: Path) -> list[str]:
             for r in all_rows
         )
 
-    lines = _header(campaign, table, folder, _command(campaign, folder))
+    lines = _header(campaign, table, _command(campaign, folder))
     lines += [
         "| controller | period (µs) | speed loop (Hz) | \\|compensation error\\| (%) | residual gravity error (g) "
         "| x in free fall, mean / worst (µm) | x at the collision, mean / worst (µm) | failures "
@@ -107,10 +110,11 @@ def period_bandwidth(campaign, table, folder: Path) -> list[str]:
                 )
     lines.append("")
     worst_gravity = _stats(r["summary_residual_gravity_g"] for r in rows)[1]
-    lines.append(
-        f"- Largest residual gravity error of any run: {_fmt(worst_gravity, '.1e')} g "
-        f"({'below' if worst_gravity < 1e-4 else 'above'} the 10⁻⁴ g level)."
-    )
+    if math.isfinite(worst_gravity):
+        lines.append(
+            f"- Largest residual gravity error of any run: {worst_gravity:.1e} g "
+            f"({'below' if worst_gravity < 1e-4 else 'above'} the 10⁻⁴ g level)."
+        )
     for controller in controllers:
         points = [
             (_stats(cell(controller, p, b, "flexible_unit_excursion_collision_m"))[0], p, b)
@@ -185,7 +189,7 @@ def fifty_gram_floor(campaign, table, folder: Path) -> list[str]:
 
     ideal = next((stage(r, "ideal_descent_accel_m_s2") for r in rows), math.nan)
     paper_pct = 100.0 * (PAPER_FIFTY_GRAM_MM_S2 * 1e-3 / ideal - 1.0) if math.isfinite(ideal) else math.nan
-    lines = _header(campaign, table, folder, _command(campaign, folder))
+    lines = _header(campaign, table, _command(campaign, folder))
     lines += [
         f"The paper's 50 g stage fell at {PAPER_FIFTY_GRAM_MM_S2} mm/s² against the ideal "
         f"{_fmt(ideal * 1e3, '.3f')} mm/s²: {_fmt(paper_pct, '+.1f')} %.",
@@ -217,7 +221,8 @@ def fifty_gram_floor(campaign, table, folder: Path) -> list[str]:
         sensed = _stats(stage(r, "accelerometer_descent_accel_m_s2") for r in select(bias=bias))[0]
         sensed_by_bias[bias] = sensed
         error = 100.0 * (sensed / ideal - 1.0)
-        lines.append(f"| {bias:g} | {bias / 9.80665 * 1e6:.0f} | {_fmt(sensed * 1e3, '.3f')} | {_fmt(error, '+.1f')} |")
+        micro_g = bias / STANDARD_GRAVITY_M_S2 * 1e6
+        lines.append(f"| {bias:g} | {micro_g:.0f} | {_fmt(sensed * 1e3, '.3f')} | {_fmt(error, '+.1f')} |")
     figure = figure_class()(figsize=(10, 4))
     left, right = figure.subplots(1, 2)
     for ruler in rulers:
@@ -258,7 +263,7 @@ def landing_monte_carlo(campaign, table, folder: Path) -> list[str]:
     rows = _rows(table)
     controllers = list(dict.fromkeys(r["controller"] for r in rows))
     all_rows = table.to_pylist()
-    lines = _header(campaign, table, folder, _command(campaign, folder))
+    lines = _header(campaign, table, _command(campaign, folder))
     lines += [
         "Per controller over every scenario, plant and seed: mean, 5th–95th percentile and worst.",
         "",
@@ -317,6 +322,12 @@ def landing_monte_carlo(campaign, table, folder: Path) -> list[str]:
     return lines
 
 
+#: The columns (swept or sampled keys) each study's page reads.
+STUDY_COLUMNS: dict[str, tuple[str, ...]] = {
+    "period-bandwidth": ("servo.speed_loop_gain_hz",),
+    "fifty-gram-floor": ("qzs.guide_friction_n", "sensors.ruler_resolution_m", "sensors.accelerometer_bias_m_s2"),
+    "landing-monte-carlo": (),
+}
 #: The study pages by the name a campaign's ``report:`` gives.
 STUDIES: dict[str, Callable[[Any, Any, Path], list[str]]] = {
     "period-bandwidth": period_bandwidth,
