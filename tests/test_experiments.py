@@ -20,6 +20,7 @@ from microg_env.experiments.campaign import Campaign
 from microg_env.experiments.runner import run, run_all
 from microg_env.experiments.spec import RunSpec
 from microg_env.experiments.store import ResultStore, result_row
+from microg_env.params import PHYSICS_STEP_S
 
 MICROG = [sys.executable, "-m", "microg_env.cli"]
 SHORT = {"scenario": "condition-2", "duration_s": 0.3}
@@ -32,6 +33,9 @@ def test_spec_hash_is_content_only_and_stable_across_processes():
     assert spec == same
     assert len(spec.hash) == 16
     assert RunSpec.from_dict(json.loads(json.dumps(spec.as_dict()))) == spec
+    # microseconds become the environment's seconds exactly (100 * 1e-6 is not 1e-4: a different step)
+    assert RunSpec(physics_step_us=100, control_period_us=200).physics_step_s == PHYSICS_STEP_S
+    assert RunSpec(control_period_us=200).control_period_s == 2e-4
     changed = [
         spec.replace(seed=8),
         spec.replace(controller="feedforward"),

@@ -128,11 +128,11 @@ class RunSpec:
 
     @property
     def control_period_s(self) -> float:
-        return self.control_period_us * 1e-6
+        return self.control_period_us / 1e6
 
     @property
     def physics_step_s(self) -> float:
-        return self.physics_step_us * 1e-6
+        return self.physics_step_us / 1e6
 
     def scenario_schedule(self) -> Scenario:
         """The test schedule: the named scenario with this spec's loads, start height and duration."""
