@@ -16,7 +16,7 @@ import os
 import socket
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -106,7 +106,7 @@ def execute(
     todo = [run for run in runs if stored.get(run.spec.hash) != OK]
     skipped = len(runs) - len(todo)
     folder.mkdir(parents=True, exist_ok=True)
-    write_text(folder / CAMPAIGN_COPY, json.dumps(_campaign_record(campaign), indent=2) + "\n")
+    write_text(folder / CAMPAIGN_COPY, json.dumps(asdict(campaign), indent=2) + "\n")
     done = failed = 0
     if todo:
         if not ray.is_initialized():
@@ -200,16 +200,3 @@ def check_address(address: str) -> None:
 def _finish(store: ResultStore, runs: Sequence[Run], folder: Path) -> None:
     if store.parts.exists():
         store.export(folder / RESULTS_FILE, [run.spec.hash for run in runs])
-
-
-def _campaign_record(campaign: Campaign) -> dict[str, Any]:
-    return {
-        "name": campaign.name,
-        "description": campaign.description,
-        "base": campaign.base,
-        "sweep": campaign.sweep,
-        "samples": campaign.samples,
-        "seeds": list(campaign.seeds),
-        "report": campaign.report,
-        "batch_size": campaign.batch_size,
-    }

@@ -16,7 +16,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cache
 from importlib import metadata
 from typing import Any
@@ -59,9 +59,6 @@ class RunResult:
     @property
     def ok(self) -> bool:
         return self.error is None
-
-    def without_trajectories(self) -> RunResult:
-        return RunResult(self.spec, self.metrics, self.error, self.tuned_gains, self.wall_s, self.versions)
 
 
 def run(
@@ -147,11 +144,10 @@ def run_all(specs: Sequence[RunSpec], workers: int = 1, **kwargs) -> list[RunRes
 
 
 def _finished(result: RunResult, wall_s: float, keep: bool) -> RunResult:
-    result = RunResult(
-        result.spec, result.metrics, result.error, result.tuned_gains, wall_s, result.versions,
-        result.trajectory, result.reference,
-    )  # fmt: skip
-    return result if keep else result.without_trajectories()
+    """``result`` with its wall time, and its trajectories only if ``keep``."""
+    if keep:
+        return replace(result, wall_s=wall_s)
+    return replace(result, wall_s=wall_s, trajectory=None, reference=None)
 
 
 def _error_text(error: BaseException) -> str:

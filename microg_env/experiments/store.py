@@ -24,19 +24,6 @@ from microg_env.analysis.metrics import RunMetrics
 from microg_env.experiments.runner import RunResult
 from microg_env.files import atomic_path
 
-#: The row's columns before the campaign's own (swept and sampled values) and the metrics.
-ID_COLUMNS = (
-    "spec_hash",
-    "status",
-    "error",
-    "scenario",
-    "controller",
-    "seed",
-    "randomize",
-    "control_period_us",
-    "physics_step_us",
-    "duration_s",
-)
 #: Prefix of the comparison's summary quantities (``microg compare``'s, one value per run).
 SUMMARY_PREFIX = "summary_"
 #: Status of a run that completed (its metrics are set) and of one that raised.
