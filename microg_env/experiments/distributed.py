@@ -10,12 +10,15 @@ that raises, or a task whose worker dies, is stored with its error.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import signal
 import socket
+import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +31,8 @@ from microg_env.files import write_text
 
 #: Seconds to wait for a cluster's head to answer.
 CONNECT_TIMEOUT_S = 5.0
+#: Seconds between the driver's looks at a Ctrl-C while it waits for tasks.
+WAIT_S = 0.2
 #: The campaign's table, in its folder.
 RESULTS_FILE = "results.parquet"
 #: The campaign file as it was run, in its folder.
@@ -93,7 +98,7 @@ def execute(
     on_progress: Callable[[int, int], None] | None = None,
 ) -> CampaignSummary:
     """Run ``campaign``'s missing runs on Ray and store them in ``folder``; ``on_progress(runs done,
-    runs to do)`` as tasks finish. A KeyboardInterrupt cancels the tasks still out, keeps every
+    runs to do)`` as tasks finish. A KeyboardInterrupt stops the tasks still out, keeps every
     stored row, writes the table of what is stored and re-raises."""
     import ray
 
@@ -124,25 +129,28 @@ def execute(
             ref = remote.remote([run.spec.as_dict() for run in task], [run.columns for run in task])
             pending[ref] = task
         try:
-            while pending:
-                ready, _ = ray.wait(list(pending), num_returns=1)
-                task = pending.pop(ready[0])
-                try:
-                    rows = ray.get(ready[0])
-                except Exception as error:  # the worker died or the task could not run: record it
-                    message = f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
-                    rows = [result_row(RunResult(run.spec, None, message), run.columns) for run in task]
-                store.write(rows)
-                failed += sum(row["status"] == FAILED for row in rows)
-                done += len(rows)
-                if on_progress is not None:
-                    on_progress(len(rows), len(todo))
-        except KeyboardInterrupt:
-            for ref in pending:
-                ray.cancel(ref, force=True)
-            raise
+            with _interrupt_flag() as interrupted:
+                while pending:
+                    ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_S)
+                    for ref in ready:
+                        task = pending.pop(ref)
+                        try:
+                            rows = ray.get(ref)
+                        except Exception as error:  # the worker died or the task could not run: record it
+                            message = f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
+                            rows = [result_row(RunResult(run.spec, None, message), run.columns) for run in task]
+                        store.write(rows)
+                        failed += sum(row["status"] == FAILED for row in rows)
+                        done += len(rows)
+                        if on_progress is not None:
+                            on_progress(len(rows), len(todo))
+                    if interrupted.is_set():
+                        raise KeyboardInterrupt
         finally:
-            ray.shutdown()  # the driver's connection; a cluster given by --address runs on
+            # Ends the driver's job: Ray kills the job's workers, so the tasks still out stop (a
+            # cluster given by --address runs on). No ray.cancel: cancelling a task whose reply is
+            # already on its way trips a check in Ray's task manager and kills the driver.
+            ray.shutdown()
             _finish(store, runs, folder)
     else:
         _finish(store, runs, folder)
@@ -162,6 +170,23 @@ def execute(
         report,
         time.perf_counter() - start,
     )
+
+
+@contextlib.contextmanager
+def _interrupt_flag() -> Iterator[threading.Event]:
+    """Within: SIGINT (Ctrl-C) sets the yielded event instead of raising KeyboardInterrupt, and the
+    caller raises it where it chooses. Ray's ``wait`` checks for signals itself and can drop the
+    KeyboardInterrupt when a task finishes at the same moment (the campaign then ran on to the end);
+    a flag cannot be dropped. Off the main thread, where Python allows no handler, it stays unset."""
+    interrupted = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield interrupted
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.set())
+    try:
+        yield interrupted
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)
 
 
 def check_folder(campaign: Campaign, folder: Path) -> None:
