@@ -125,10 +125,10 @@ def execute(
             )
         remote = ray.remote(num_cpus=1, max_retries=0)(_run_task)
         pending = {}
-        for task in tasks_of(todo, campaign.batch_size):
-            ref = remote.remote([run.spec.as_dict() for run in task], [run.columns for run in task])
-            pending[ref] = task
         try:
+            for task in tasks_of(todo, campaign.batch_size):
+                ref = remote.remote([run.spec.as_dict() for run in task], [run.columns for run in task])
+                pending[ref] = task
             with _interrupt_flag() as interrupted:
                 while pending:
                     ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_S)
