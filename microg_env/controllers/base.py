@@ -44,15 +44,20 @@ class SetpointController(Controller, Protocol):
 
 class VectorController:
     """Per-rig state for a vectorised controller: the arrays named in :attr:`STATE`, each with the
-    value an episode starts from, grown to the rigs the controller has seen."""
+    value an episode starts from, grown to the rigs the controller has seen. ``parts`` are the
+    controllers it drives inside (a feedback loop, a base controller): they are reset and grown with it."""
 
     STATE: ClassVar[dict[str, float]] = {}
 
-    def __init__(self) -> None:
+    def __init__(self, *parts: VectorController) -> None:
+        self.parts = parts
+        self.size = 1  # how many rigs the state arrays hold
         for name, start in self.STATE.items():
             setattr(self, name, np.full(1, start))
 
     def reset(self, ids: np.ndarray | None = None) -> None:
+        for part in self.parts:
+            part.reset(ids)
         if ids is None:
             for name, start in self.STATE.items():
                 getattr(self, name)[:] = start
@@ -64,35 +69,34 @@ class VectorController:
 
     def grow(self, count: int) -> None:
         """Make room for rigs 0 to ``count`` - 1 (new rigs start an episode)."""
-        size = self.size
-        if count > size:
-            for name, start in self.STATE.items():
-                setattr(self, name, np.concatenate([getattr(self, name), np.full(count - size, start)]))
+        if count <= self.size:
+            return
+        for part in self.parts:
+            part.grow(count)
+        for name, start in self.STATE.items():
+            setattr(self, name, np.concatenate([getattr(self, name), np.full(count - self.size, start)]))
+        self.size = count
 
     def __call__(self, observation: np.ndarray, info: Any = None, ids: np.ndarray | None = None) -> np.ndarray:
         observation = np.asarray(observation)
         rows = observation[None] if observation.ndim == 1 else observation
-        if ids is None:  # rigs 0 to n-1, as a slice (faster than an index array)
+        if ids is None:  # rigs 0 to n-1
             self.grow(len(rows))
-            index = slice(0, len(rows))
+            index = _RIGS[: len(rows)] if len(rows) <= _RIGS.size else np.arange(len(rows))
         else:
             index = np.asarray(ids, dtype=np.int64)
             self.grow(int(index.max(initial=-1)) + 1)
         actions = np.asarray(self.act(rows, index), dtype=np.float32)
-        return actions[:1] if observation.ndim == 1 else actions[:, None]
+        return actions if observation.ndim == 1 else actions[:, None]
 
-    def act(self, rows: np.ndarray, index: np.ndarray | slice) -> np.ndarray:
-        """The actions (n,) for observations ``rows`` (n, 10) of the rigs ``index`` selects."""
+    def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """The actions (n,) for observations ``rows`` (n, 10) of rigs ``ids`` (an index array), float32
+        (the action space's type)."""
         raise NotImplementedError
 
-    def rigs(self, index: np.ndarray | slice) -> np.ndarray:
-        """The rig numbers ``index`` selects."""
-        return np.arange(self.size)[index]
 
-    @property
-    def size(self) -> int:
-        """How many rigs the state arrays hold."""
-        return getattr(self, next(iter(self.STATE))).size
+#: Rig numbers 0, 1, ... as an index array (the rigs a call with ``ids=None`` drives).
+_RIGS = np.arange(4096)
 
 
 @dataclass(frozen=True)

@@ -34,11 +34,17 @@ from typing import ClassVar
 
 import numpy as np
 
-from microg_env.controllers.base import MAX_SPEED_M_S, Readings, VectorController
-from microg_env.controllers.pid import PID, PIDGains, controller_config, load_gains
+from microg_env.compiled import jit
+from microg_env.controllers.base import VectorController
+from microg_env.controllers.pid import PID, X_RATE, PIDGains, X, controller_config, load_gains, pid_command
+from microg_env.envs.observation import OBSERVATION_INDEX, SCALES
 from microg_env.params import RigParams
 from microg_env.sim.model import drive_inertia_kg_m2, flexible_unit, speed_loop_gains
 
+#: Observation columns the feed-forward reads beyond the PID's.
+SUPPORT_POSITION, SUPPORT_VELOCITY, PAD_FORCE, PLACED_LOAD = (
+    OBSERVATION_INDEX[name] for name in ("support_position", "support_velocity", "pad_force", "placed_load")
+)
 #: Pad-force readings below this are taken as no contact (the sensor's noise is 0.1 N RMS), N.
 CONTACT_THRESHOLD_N = 0.5
 
@@ -73,11 +79,11 @@ class Feedforward(VectorController):
         settings: FeedforwardSettings | None = None,
         gains: PIDGains | None = None,
     ) -> None:
-        super().__init__()
+        self.pid = PID(load_gains("pid") if gains is None else gains, control_period_s)  # the feedback loop
+        super().__init__(self.pid)
         params = RigParams() if params is None else params
         self.settings = FeedforwardSettings.load() if settings is None else settings
         self.control_period_s = control_period_s
-        self.pid = PID(load_gains("pid") if gains is None else gains, control_period_s)  # the feedback loop
         screw, servo = params.screw, params.servo
         unit = flexible_unit(params)
         self._mass = params.lander.mass_kg
@@ -95,57 +101,67 @@ class Feedforward(VectorController):
     def setpoint_m(self) -> np.ndarray:
         return self.pid.setpoint_m
 
-    def reset(self, ids: np.ndarray | None = None) -> None:
-        super().reset(ids)
-        self.pid.reset(ids)
+    def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        servo = self._servo
+        actions = np.empty(ids.size, dtype=np.float32)
+        feedforward_actions(
+            rows, ids, SCALES, self._start, self._velocity, self._reference_offset, self._bristle,
+            self.control_period_s, self.settings.velocity_observer_gain, self.settings.prediction_horizon_s,
+            self._mass, self._gravity, self._x_stiffness, self._support_stiffness, self._viscous, self._gear,
+            self._kp, self._kd, self._inertia, servo.cogging_torque_n_m, float(servo.cogging_cycles_per_rev),
+            servo.bristle_stiffness_n_m_per_rad, servo.bristle_damping_n_m_s_per_rad, servo.coulomb_torque_n_m,
+            servo.static_torque_n_m, servo.stribeck_speed_rad_s, actions, *self.pid.loop(),
+        )  # fmt: skip
+        return actions
 
-    def grow(self, count: int) -> None:
-        super().grow(count)
-        self.pid.grow(count)
 
-    def act(self, rows: np.ndarray, ids: np.ndarray | slice) -> np.ndarray:
-        r = Readings.of(rows)
-        period = self.control_period_s
-        first = np.isnan(self._start[ids])
-        if first.any():
-            starting = self.rigs(ids)[first]
-            self._start[starting] = r.support_position_m[first]
-            self._velocity[starting] = (r.support_velocity_m_s + r.x_rate_m_s)[first]
-        force = np.where(r.pad_force_n > CONTACT_THRESHOLD_N, r.pad_force_n, 0.0)
-        accel = (force - r.placed_load_kg * self._gravity - self._x_stiffness * r.x_m) / (self._mass + r.placed_load_kg)
-        velocity = self._velocity[ids] + accel * period
-        velocity += self.settings.velocity_observer_gain * (r.support_velocity_m_s + r.x_rate_m_s - velocity)
-        self._velocity[ids] = velocity
-        speed = self.pid.command(r, ids, bias_m_s=velocity + accel * period)  # one period ahead
-        torque = self._drive_torque(r, ids, speed, accel)
-        reference_offset = self._reference_offset[ids]
-        offset = (torque - self._kp * reference_offset) / (self._kd + self._kp * period)
-        self._reference_offset[ids] = reference_offset + offset * period
-        return (speed + offset / self._gear) / MAX_SPEED_M_S
-
-    def _drive_torque(
-        self, r: Readings, ids: np.ndarray | slice, speed_m_s: np.ndarray, accel_m_s2: np.ndarray
-    ) -> np.ndarray:
-        """Motor torque, N m, beyond the speed loop's own, that each rig's support will need."""
-        servo, gear, period = self._servo, self._gear, self.control_period_s
-        load = self._support_stiffness * (r.support_position_m - self._start[ids]) + self._viscous * speed_m_s
-        torque = self._inertia * gear * accel_m_s2 + load / gear
-        angle = gear * (r.support_position_m + r.support_velocity_m_s * self.settings.prediction_horizon_s)
-        torque -= servo.cogging_torque_n_m * np.sin(servo.cogging_cycles_per_rev * angle)
-        if servo.bristle_stiffness_n_m_per_rad > 0:  # LuGre friction of the commanded motion
-            omega = gear * speed_m_s
-            stribeck = servo.coulomb_torque_n_m + (servo.static_torque_n_m - servo.coulomb_torque_n_m) * np.exp(
-                -((omega / servo.stribeck_speed_rad_s) ** 2)
-            )
-            rate = servo.bristle_stiffness_n_m_per_rad * np.abs(omega) / np.maximum(stribeck, 1e-12)
+@jit
+def feedforward_actions(
+    rows, ids, scales, start, velocity, reference_offset, bristle, period, observer_gain, horizon, mass, gravity,
+    x_stiffness, support_stiffness, viscous, gear, kp_speed, kd_speed, inertia, cogging, cogging_cycles,
+    bristle_stiffness, bristle_damping, coulomb, static, stribeck_speed, out,
+    setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, pid_period, max_speed,
+):  # fmt: skip
+    """The feed-forward's actions (command / max_speed) for observations ``rows`` of rigs ``ids``,
+    into ``out``; the last arguments are its PID's (:meth:`PID.loop`)."""
+    for j in range(ids.size):
+        i = ids[j]
+        x = rows[j, X] * scales[X]
+        x_rate = rows[j, X_RATE] * scales[X_RATE]
+        position = rows[j, SUPPORT_POSITION] * scales[SUPPORT_POSITION]
+        support_velocity = rows[j, SUPPORT_VELOCITY] * scales[SUPPORT_VELOCITY]
+        pad_force = rows[j, PAD_FORCE] * scales[PAD_FORCE]
+        placed = rows[j, PLACED_LOAD] * scales[PLACED_LOAD]
+        if np.isnan(start[i]):  # the rig's first period: its trim and velocity as measured
+            start[i] = position
+            velocity[i] = support_velocity + x_rate
+        # 1. The lander's motion (Eq. 1 with the pad force measured), fed forward one period ahead.
+        force = pad_force if pad_force > CONTACT_THRESHOLD_N else 0.0
+        accel = (force - placed * gravity - x_stiffness * x) / (mass + placed)
+        estimate = velocity[i] + accel * period
+        estimate += observer_gain * (support_velocity + x_rate - estimate)
+        velocity[i] = estimate
+        speed = pid_command(
+            i, x, x_rate, estimate + accel * period, setpoint, integral, derivative, kp, ki, kd, alpha,
+            integral_limit, pid_period, max_speed,
+        )  # fmt: skip
+        # 2. The motor torque beyond the speed loop's own that the support will need.
+        load = support_stiffness * (position - start[i]) + viscous * speed
+        torque = inertia * gear * accel + load / gear
+        angle = gear * (position + support_velocity * horizon)
+        torque -= cogging * np.sin(cogging_cycles * angle)
+        if bristle_stiffness > 0:  # LuGre friction of the commanded motion
+            omega = gear * speed
+            ratio = omega / stribeck_speed
+            stribeck = coulomb + (static - coulomb) * np.exp(-(ratio * ratio))
+            rate = bristle_stiffness * abs(omega) / max(stribeck, 1e-12)
             decay = np.exp(-rate * period)
-            moving = rate > 1e-12
-            # exact over the period at constant speed
-            step = np.where(moving, (1.0 - decay) / np.where(moving, rate, 1.0), period)
-            previous = self._bristle[ids].copy()  # a view when ids is a slice
-            bristle = decay * previous + step * omega
-            self._bristle[ids] = bristle
-            torque += servo.bristle_stiffness_n_m_per_rad * bristle + servo.bristle_damping_n_m_s_per_rad * (
-                (bristle - previous) / period
-            )
-        return torque
+            step = (1.0 - decay) / rate if rate > 1e-12 else period  # exact over the period at constant speed
+            previous = bristle[i]
+            bristle[i] = decay * previous + step * omega
+            torque += bristle_stiffness * bristle[i] + bristle_damping * ((bristle[i] - previous) / period)
+        # The torque as a speed-reference offset that the drive's PI law adds.
+        accumulated = reference_offset[i]
+        offset = (torque - kp_speed * accumulated) / (kd_speed + kp_speed * period)
+        reference_offset[i] = accumulated + offset * period
+        out[j] = (speed + offset / gear) / max_speed

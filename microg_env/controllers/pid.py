@@ -24,12 +24,18 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from microg_env.controllers.base import MAX_SPEED_M_S, Readings, VectorController
+from microg_env.compiled import jit
+from microg_env.controllers.base import MAX_SPEED_M_S, VectorController
+from microg_env.envs.observation import OBSERVATION_INDEX, SCALES
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
+
+
+#: Observation columns the feedback loops read.
+X, X_RATE, SUPPORT_VELOCITY = (OBSERVATION_INDEX[name] for name in ("x", "x_rate", "support_velocity"))
 
 
 @dataclass(frozen=True)
@@ -76,24 +82,57 @@ class PID(VectorController):
         self.derivative_on_measurement = derivative_on_measurement
         self._alpha = control_period_s / (gains.derivative_filter_s + control_period_s)
 
-    def act(self, rows: np.ndarray, ids: np.ndarray | slice) -> np.ndarray:
-        return self.command(Readings.of(rows), ids) / MAX_SPEED_M_S
-
-    def command(self, readings: Readings, ids: np.ndarray | slice, bias_m_s: np.ndarray | float = 0.0) -> np.ndarray:
-        """The speed commands, m/s, of rigs ``ids`` for these readings; ``bias_m_s`` (a feed-forward)
-        is added inside the saturation, so the anti-windup sees the whole command."""
+    def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        actions = np.empty(ids.size, dtype=np.float32)
         g = self.gains
-        error = readings.x_m - self.setpoint_m[ids]
-        rate = -readings.support_velocity_m_s if self.derivative_on_measurement else readings.x_rate_m_s
-        derivative = self._derivative[ids]
-        derivative += self._alpha * (rate - derivative)
-        self._derivative[ids] = derivative
-        previous = self._integral[ids]
-        integral = np.clip(
-            previous + g.ki_per_s2 * error * self.control_period_s, -g.integral_limit_m_s, g.integral_limit_m_s
+        pid_actions(
+            rows, ids, SCALES, self.derivative_on_measurement, self.setpoint_m, self._integral, self._derivative,
+            g.kp_per_s, g.ki_per_s2, g.kd, self._alpha, g.integral_limit_m_s, self.control_period_s, MAX_SPEED_M_S,
+            actions,
+        )  # fmt: skip
+        return actions
+
+    def loop(self) -> tuple:
+        """The arguments of :func:`pid_command` after ``i, x, rate, bias``: this loop's state and gains."""
+        g = self.gains
+        return (
+            self.setpoint_m, self._integral, self._derivative, g.kp_per_s, g.ki_per_s2, g.kd, self._alpha,
+            g.integral_limit_m_s, self.control_period_s, MAX_SPEED_M_S,
+        )  # fmt: skip
+
+
+@jit
+def pid_command(
+    i, x, rate, bias, setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, period, max_speed
+):  # fmt: skip
+    """Rig ``i``'s speed command, m/s, for its ruler reading ``x`` and derivative input ``rate``;
+    ``bias`` (a feed-forward, m/s) is added inside the saturation, so the anti-windup sees the whole
+    command. Updates the rig's integral and filtered derivative."""
+    error = x - setpoint[i]
+    filtered = derivative[i] + alpha * (rate - derivative[i])
+    derivative[i] = filtered
+    previous = integral[i]
+    integrated = min(max(previous + ki * error * period, -integral_limit), integral_limit)
+    command = bias + kp * error + integrated + kd * filtered
+    # Conditional integration: do not wind the integral further into a saturated command.
+    if abs(command) <= max_speed or (command > 0) != (error > 0):
+        integral[i] = integrated
+    return min(max(command, -max_speed), max_speed)
+
+
+@jit
+def pid_actions(
+    rows, ids, scales, on_measurement, setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, period,
+    max_speed, out,
+):  # fmt: skip
+    """The PID's actions (command / max_speed) for observations ``rows`` of rigs ``ids``, into ``out``."""
+    for j in range(ids.size):
+        x = rows[j, X] * scales[X]
+        if on_measurement:
+            rate = -(rows[j, SUPPORT_VELOCITY] * scales[SUPPORT_VELOCITY])
+        else:
+            rate = rows[j, X_RATE] * scales[X_RATE]
+        command = pid_command(
+            ids[j], x, rate, 0.0, setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, period, max_speed
         )
-        command = bias_m_s + g.kp_per_s * error + integral + g.kd * derivative
-        # Conditional integration: do not wind the integral further into a saturated command.
-        keep = (np.abs(command) <= MAX_SPEED_M_S) | ((command > 0) != (error > 0))
-        self._integral[ids] = np.where(keep, integral, previous)
-        return np.minimum(np.maximum(command, -MAX_SPEED_M_S), MAX_SPEED_M_S)
+        out[j] = command / max_speed

@@ -136,27 +136,19 @@ class PolicyController(VectorController):
     ) -> None:
         from microg_env import validate
 
-        super().__init__()
+        super().__init__(*(() if base is None else (base,)))
         self.policy = policy
         self.deterministic = deterministic
         self.decision_period = validate.integer("decision_period", decision_period, 1, 1000)
         self.base = base
         self.residual_limit_m = validate.positive("residual_limit_m", residual_limit_m, "m", 1e-3)
 
-    def reset(self, ids: np.ndarray | None = None) -> None:
-        super().reset(ids)
-        if self.base is not None:
-            self.base.reset(ids)
-
-    def grow(self, count: int) -> None:
-        super().grow(count)
-        if self.base is not None:
-            self.base.grow(count)
-
-    def act(self, rows: np.ndarray, ids: np.ndarray | slice) -> np.ndarray:
-        due = self._periods[ids] % self.decision_period == 0
+    def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        periods = self._periods[ids]
+        self._periods[ids] = periods + 1
+        due = periods % self.decision_period == 0
         if due.any():
-            acting = self.rigs(ids)[due]
+            acting = ids[due]
             seen = np.array(rows[due], dtype=np.float32)  # what the training environment showed
             seen[:, OBSERVATION_INDEX["previous_action"]] = self._action[acting]
             seen[:, OBSERVATION_INDEX["base_command"]] = (
@@ -166,10 +158,9 @@ class PolicyController(VectorController):
             self._action[acting] = np.clip(np.asarray(action, dtype=np.float32).reshape(-1), -1.0, 1.0)
             if self.base is not None:
                 self.base.setpoint_m[acting] = self._action[acting] * self.residual_limit_m
-        self._periods[ids] += 1
         if self.base is None:
             return self._action[ids]
-        command = self.base(rows, ids=None if isinstance(ids, slice) else ids)[:, 0]
+        command = self.base.act(rows, ids)  # grown with this controller (a part of it)
         self._base_command_m_s[ids] = command.astype(np.float64) * MAX_SPEED_M_S
         return command
 

@@ -23,7 +23,8 @@ from microg_env import validate
 from microg_env.controllers.base import MAX_SPEED_M_S
 from microg_env.controllers.policy import RESIDUAL_LIMIT_M
 from microg_env.controllers.registry import BASELINES, make_controller
-from microg_env.envs.observation import OBSERVATION_INDEX, SCALES
+from microg_env.envs import period
+from microg_env.envs.observation import SCALES
 from microg_env.imperfections import DomainRandomization, Imperfections, apply_imperfections
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, MAX_CONTROL_STEPS, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import LoadStep, Scenario, ScenarioSampler
@@ -35,7 +36,6 @@ from microg_env.sim.model import (
     build_rig,
     check_physics_step,
     flexible_unit,
-    slew_rate,
     validate_loads,
 )
 from microg_env.sim.physics import BatchPhysics, ModelPhysics
@@ -70,17 +70,6 @@ INFO_KEYS = (
     "reward_x",
     "termination_reason",
 )
-
-
-def x_reward(x_m: np.ndarray | float, scale_m: float, limit_m: float) -> np.ndarray | float:
-    """The reward for holding x: 1 - log(1 + (x/scale)^2) / log(1 + (limit/scale)^2).
-
-    In decades: it falls by the same amount for each decade that x grows, from ``scale`` (x's noise
-    floor) to ``limit`` (the guide's half stroke), so it keeps a gradient from millimetres down to
-    nanometres; it is 1 at x = 0 and 0 at the guide's end, never negative, so an episode that ends
-    early only forgoes what it would have earned.
-    """
-    return 1.0 - np.log1p((np.asarray(x_m) / scale_m) ** 2) / math.log1p((limit_m / scale_m) ** 2)
 
 
 @dataclass(frozen=True)
@@ -219,6 +208,13 @@ class LandingCore:
         self.accelerometer = np.zeros(n)  # the accelerometer's last reading, m/s^2
         self.fresh = np.ones(n, dtype=bool)  # no previous reading yet: rates are 0
         self.reward_x = np.zeros(n)  # the reward of the last control period
+        self._positions = np.arange(n)
+        self._period_span_s = self.physics_step_s * self.frame_skip  # the drive's reference ramps this long
+        self._no_field = np.zeros((0, 0, 0))  # the ideal drive has no slew limiter to set
+        self._no_setpoint = np.zeros(0)  # no base controller: the state's setpoint is 0
+        self._no_commands = np.zeros(0)  # no base controller: the drive takes the actions
+        # scratch arrays of a control period, read before the next
+        self._height, self._codes, self._going = np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=bool)
 
     # -- episodes ------------------------------------------------------------------------------
 
@@ -318,8 +314,7 @@ class LandingCore:
             self.base.reset(ids)
         self._place_due_loads(ids, self.trim_height_m[ids])
         physics.forward(ids)
-        self.reward_x[ids] = x_reward(physics.qpos[ids, rig.qzs_qpos], self.reward_scale_m, self.x_limit_m)
-        self.observation[ids] = self.sense(ids, ids, rngs)
+        self._observe(ids, rngs)
 
     def _place_due_loads(self, ids: np.ndarray, height_m: np.ndarray) -> None:
         """Place the test weights whose switch height the foot has come down to (Scenario.loads_due)."""
@@ -352,82 +347,75 @@ class LandingCore:
         (:data:`TERMINATION_REASONS`), whether each was truncated, and the periods run.
         """
         if self.base is not None:
-            self.base.setpoint_m[self._index(ids)] = actions * self.residual_limit_m
-        total = np.zeros(ids.size)
-        periods = np.zeros(ids.size, dtype=np.int64)
-        codes = np.zeros(ids.size, dtype=np.int64)
-        truncated = np.zeros(ids.size, dtype=bool)
-        running = slice(None)  # positions in ids of the rigs still running (every one at first)
+            self.base.setpoint_m[ids] = actions * self.residual_limit_m
+        n = ids.size
+        total, periods = np.zeros(n), np.zeros(n, dtype=np.int64)
+        codes, truncated = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool)
+        positions, rigs = self._positions[:n], ids  # the rigs still running and their places in ids
         for _ in range(self.decision_period):
-            rigs = ids[running]
-            index = self._index(rigs)
-            if self.base is None:
-                command = actions[running] * MAX_SPEED_M_S
-            else:
-                every = isinstance(index, slice)
-                action = self.base(self.observation[index], ids=None if every else rigs)[:, 0]
-                command = action.astype(np.float64) * MAX_SPEED_M_S
-                self.base_command[index] = command
-            code = self._control_period(index, rigs, command)
-            self.previous_action[index] = actions[running]
-            self.observation[index] = self.sense(index, rigs, rngs)
-            reward = x_reward(self.physics.qpos[index, self.rig.qzs_qpos], self.reward_scale_m, self.x_limit_m)
-            self.reward_x[index] = reward
-            total[running] += reward
-            periods[running] += 1
-            codes[running] = code
-            ended = (code == 0) & (self.steps[index] >= self.max_steps[index])
-            truncated[running] = ended
-            going = (code == 0) & ~ended
-            if not going.any():
+            command = self._no_commands  # the drive takes the actions themselves
+            if self.base is not None:
+                command = self.base(self.observation[rigs], ids=rigs)[:, 0].astype(np.float64) * MAX_SPEED_M_S
+                self.base_command[rigs] = command
+            code = self._control_period(rigs, positions, actions, command, rngs)
+            going = self._going[: rigs.size]
+            left = period.tally(
+                rigs, positions, code, self.steps, self.max_steps, self.reward_x, total, periods, codes, truncated,
+                going,
+            )  # fmt: skip
+            if left == 0:
                 break
-            if not going.all():
-                running = np.arange(ids.size)[running][going]
+            if left < rigs.size:
+                positions, rigs = positions[going], rigs[going]
         return total / periods, codes, truncated, periods
 
-    def _index(self, ids: np.ndarray) -> np.ndarray | slice:
-        """``ids`` as an index into per-rig arrays: a slice when it is every rig (faster)."""
-        return slice(None) if ids.size == self.num_rigs else ids
-
-    def _control_period(self, index: np.ndarray | slice, ids: np.ndarray, command_m_s: np.ndarray) -> np.ndarray:
-        """Advance rigs ``ids`` (``index`` into per-rig arrays) one control period with the drive
-        taking ``command_m_s`` (after the delay, if on); returns their termination codes."""
+    def _control_period(
+        self,
+        ids: np.ndarray,
+        positions: np.ndarray,
+        actions: np.ndarray,
+        command_m_s: np.ndarray,
+        rngs: Sequence[np.random.Generator],
+    ) -> np.ndarray:
+        """Advance rigs ``ids`` (at ``positions`` of ``actions``) one control period with the drive
+        taking ``command_m_s`` (empty: the actions, as speeds) after the delay, if on; place the test
+        weights that came due, and read the sensors; returns the rigs' termination codes."""
         physics, rig = self.physics, self.rig
-        command = np.minimum(np.maximum(command_m_s, -MAX_SPEED_M_S), MAX_SPEED_M_S)
-        if self.imperfections.control_delay:
-            command, self.pending_command[index] = self.pending_command[index].copy(), command
-        self.command[index] = command
-        time = self.steps[index] * self.control_period_s
-        physics.qfrc_applied[index, self._drift_dof] = self.drift_n_per_s[index] * time
-        # The drive interpolates its position reference as a ramp at the commanded speed: the
-        # dcmotor's slew limiter moves the setpoint (the period's end) at the commanded rate.
-        speed = command * rig.gear
-        end = self.position_ref[index] + speed * (self.physics_step_s * self.frame_skip)
-        if rig.ideal_drive:
-            physics.ctrl[index, 0] = speed
-        else:  # the field looked up each time: a copy of the environment has its own model
-            physics.field("actuator_dynprm")[index, rig.servo, SLEW_PARAMETER] = slew_rate(speed)
-            physics.ctrl[index, 0] = end
-            physics.ctrl[index, 1] = speed
+        ideal = rig.ideal_drive
+        # the field looked up each time: a copy of the environment has its own model
+        dynprm = self._no_field if ideal else physics.field("actuator_dynprm")
+        period.drive(
+            ids, positions, actions, self.previous_action, command_m_s, self.imperfections.control_delay,
+            self.pending_command, self.command, self.steps, self.position_ref, self.drift_n_per_s, self._drift_dof,
+            physics.qfrc_applied, physics.ctrl, dynprm, rig.servo, SLEW_PARAMETER, rig.gear, ideal, MAX_SPEED_M_S,
+            self.control_period_s, self._period_span_s,
+        )  # fmt: skip
         physics.step(ids, self.frame_skip)
-        self.position_ref[index] = end
-        self.steps[index] += 1
-        waiting = self.next_load[index] < self.load_count[index]
-        if waiting.any():
-            rigs = ids[waiting]
-            height = self.foot_height(rigs)
-            due = height <= self.switch_height_m[rigs, self.next_load[rigs]]
-            if due.any():
-                self._place_due_loads(rigs[due], height[due])
-        return self._termination(index)
+        return self._observe(ids, rngs)
 
-    def _termination(self, index: np.ndarray | slice) -> np.ndarray:
-        qpos, rig = self.physics.qpos, self.rig
-        screw, x = qpos[index, rig.screw_qpos], qpos[index, rig.qzs_qpos]
+    def _observe(self, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
+        """Place the test weights of rigs ``ids`` that came due, read their sensors into their
+        observation rows (noise from each rig's generator) and score x into ``reward_x``; returns
+        their termination codes."""
+        physics, rig, sensors, noise = self.physics, self.rig, self.sensors, self._noise
+        if sensors.noisy and noise.exhausted:
+            noise.refill(ids, rngs)
+        codes, height = self._codes[: ids.size], self._height[: ids.size]
         low, high = self._screw_limits
-        code = np.where(screw + x <= self._floor, 3, 0)
-        code = np.where((screw <= low) | (screw >= high), 2, code)
-        return np.where(np.abs(x) >= self.x_limit_m, 1, code)
+        while True:
+            result = period.observe(
+                ids, physics.qpos, physics.sensordata, rig.screw_qpos, rig.qzs_qpos, self._accel_adr,
+                self._force_adr, self.gravity, sensors.noisy, sensors.noise, sensors.bias, sensors.steps, noise.block,
+                noise.used, self.last_readings, self.fresh, self.accelerometer, self.placed_load_kg,
+                self.previous_action, self.base_command, SCALES, self.control_period_s, self.observation,
+                self.reward_x, self.reward_scale_m, self.x_limit_m, low, high, self._floor, codes, self.next_load,
+                self.load_count, self.switch_height_m, height,
+            )  # fmt: skip
+            if result >= 0:
+                noise.exhausted |= result == 1
+                return codes
+            due = ~np.isnan(height)
+            self._place_due_loads(ids[due], height[due])
 
     # -- what the rigs show ----------------------------------------------------------------------
 
@@ -436,56 +424,27 @@ class LandingCore:
         qpos = self.physics.qpos
         return qpos[ids, self.rig.screw_qpos] + qpos[ids, self.rig.qzs_qpos]
 
-    def sense(self, index: np.ndarray | slice, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
-        """Observations of rigs ``ids`` (``index`` into per-rig arrays): the sensors read (noise from
-        each rig's generator, quantisation, rates by backward difference), each divided by its scale."""
+    def state(self, ids: np.ndarray) -> np.ndarray:
+        """The true physical state of rigs ``ids``, (n, 17): one row per rig, one column per
+        :data:`INFO_KEYS` entry but the termination reason."""
         physics, rig = self.physics, self.rig
-        truth = np.empty((4, ids.size))
-        truth[0] = physics.qpos[index, rig.qzs_qpos]
-        truth[1] = physics.qpos[index, rig.screw_qpos]
-        truth[2] = physics.sensordata[index, self._accel_adr] - self.gravity[index]
-        truth[3] = physics.sensordata[index, self._force_adr]
-        readings = self.sensors.read(truth, self._noise.draw(ids, rngs) if self.sensors.noisy else None)
-        rates = (readings[:2] - self.last_readings[:, index]) / self.control_period_s
-        rates[:, self.fresh[index]] = 0.0
-        self.last_readings[:, index] = readings[:2]
-        self.accelerometer[index] = readings[2]
-        self.fresh[index] = False
-        raw = np.empty((ids.size, len(SCALES)))
-        raw[:, 0], raw[:, 1], raw[:, 2], raw[:, 3] = readings[0], rates[0], readings[1], rates[1]
-        raw[:, 4], raw[:, 5], raw[:, 6] = readings[2], readings[3], readings[1] + readings[0]
-        raw[:, 7], raw[:, 8] = self.placed_load_kg[index], self.previous_action[index]
-        raw[:, OBSERVATION_INDEX["base_command"]] = self.base_command[index]
-        return (raw / SCALES).astype(np.float32)
+        out = np.empty((ids.size, len(INFO_KEYS) - 1))
+        setpoint = self.base.setpoint_m if self.base is not None else self._no_setpoint
+        period.state(
+            ids, physics.qpos, physics.qvel, physics.qacc, physics.sensordata, physics.actuator_force,
+            physics.qfrc_applied, rig.screw_qpos, rig.qzs_qpos, rig.screw_dof, rig.qzs_dof, rig.servo,
+            self._force_adr, self._drift_dof == rig.qzs_dof, self.x_stiffness, self.steps, self.control_period_s,
+            self.accelerometer, self.placed_load_kg, self.next_load, self.command, setpoint,
+            self.reference_weight_n, self.reward_x, out,
+        )  # fmt: skip
+        return out
 
     def info(self, ids: np.ndarray, codes: np.ndarray) -> dict[str, np.ndarray]:
         """The true physical state of rigs ``ids`` (:data:`INFO_KEYS`), one array entry per rig; new
-        arrays (``ids`` is an index array, never a slice), so they do not change as the rigs step."""
-        physics, rig = self.physics, self.rig
-        qpos, qvel, qacc = physics.qpos[ids], physics.qvel[ids], physics.qacc[ids]
-        x = qpos[:, rig.qzs_qpos]
-        deviation = -self.x_stiffness[ids] * x
-        if self._drift_dof == rig.qzs_dof:
-            deviation = deviation + physics.qfrc_applied[ids, rig.qzs_dof]
-        values = {
-            "time_s": self.steps[ids] * self.control_period_s,
-            "x_m": x,
-            "foot_height_m": qpos[:, rig.screw_qpos] + x,
-            "lander_velocity_m_s": qvel[:, rig.screw_dof] + qvel[:, rig.qzs_dof],
-            "lander_accel_m_s2": qacc[:, rig.screw_dof] + qacc[:, rig.qzs_dof],
-            "accelerometer_m_s2": self.accelerometer[ids],
-            "support_position_m": qpos[:, rig.screw_qpos],
-            "support_velocity_m_s": qvel[:, rig.screw_dof],
-            "support_force_deviation_n": deviation,
-            "pad_force_n": physics.sensordata[ids, self._force_adr],
-            "placed_load_kg": self.placed_load_kg[ids],
-            "stage": self.next_load[ids] - 1,
-            "command_m_s": self.command[ids],
-            "setpoint_m": self.base.setpoint_m[ids] if self.base is not None else np.zeros(ids.size),
-            "servo_torque_n_m": physics.actuator_force[ids, rig.servo],
-            "compensation_error": deviation / self.reference_weight_n[ids],
-            "reward_x": self.reward_x[ids],
-        }
+        arrays, so they do not change as the rigs step."""
+        columns = self.state(ids).T.copy()
+        values = dict(zip(INFO_KEYS, columns, strict=False))
+        values["stage"] = columns[INFO_KEYS.index("stage")].astype(np.int64)
         values["termination_reason"] = np.array([TERMINATION_REASONS[c] for c in codes], dtype=object)
         return values
 
@@ -493,6 +452,11 @@ class LandingCore:
 def check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
     """The actions as floats clipped to [-1, 1], flat; NaN, infinite, non-numeric or wrongly shaped
     actions raise ValueError (``shape`` is (1,) for one rig, (N, 1) for N)."""
+    if type(actions) is np.ndarray and actions.dtype.kind == "f" and actions.shape == shape == (1,):
+        value = float(actions[0])  # one rig's action, as controllers and SB3 give it: the fast path
+        if not math.isfinite(value):
+            raise ValueError(f"action must be finite, got {value!r}")
+        return np.array([min(max(value, -1.0), 1.0)])
     array = np.asarray(actions)
     if array.dtype.kind not in "fiu":  # not bool, complex, string or object
         raise ValueError(f"action must be a real-valued array of shape {shape}, got {actions!r}")

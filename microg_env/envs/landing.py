@@ -15,8 +15,9 @@ from gymnasium.error import ResetNeeded
 
 from microg_env import validate
 from microg_env.controllers.policy import RESIDUAL_LIMIT_M
-from microg_env.envs.core import INFO_KEYS, LandingCore, check_actions, x_reward
+from microg_env.envs.core import INFO_KEYS, TERMINATION_REASONS, LandingCore, check_actions
 from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES, SCALES
+from microg_env.envs.period import x_reward
 from microg_env.imperfections import DomainRandomization, Imperfections
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import Scenario, ScenarioSampler
@@ -257,16 +258,18 @@ class MicroGravityLandingEnv(gym.Env):
         if core.episodes[0] is None:
             raise ResetNeeded("call reset() before step()")
         actions = check_actions(action, (1,))
-        before = int(core.steps[0])
+        before = int(core.steps[0]) // self._human_every if self.render_mode == "human" else None
         reward, codes, truncated, _ = core.step(_ONE, actions, [self.np_random])
-        if self.render_mode == "human" and before // self._human_every != int(core.steps[0]) // self._human_every:
+        if before is not None and before != int(core.steps[0]) // self._human_every:
             self.render()
         observation = core.observation[0].copy()
         return observation, float(reward[0]), bool(codes[0]), bool(truncated[0]), self._info(codes)
 
     def _info(self, codes: np.ndarray) -> dict[str, Any]:
-        info = self.core.info(_ONE, codes)
-        return {key: info[key].tolist()[0] for key in INFO_KEYS}  # plain floats and ints
+        info = dict(zip(INFO_KEYS, self.core.state(_ONE)[0].tolist(), strict=False))  # plain floats
+        info["stage"] = int(info["stage"])
+        info["termination_reason"] = TERMINATION_REASONS[codes[0]]
+        return info
 
     def render(self):
         if self.render_mode is None:

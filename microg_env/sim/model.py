@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 
 from microg_env import validate
+from microg_env.compiled import ufunc
 from microg_env.files import data_folder
 from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RigParams, parameter_paths
 from microg_env.sim.limits import check_integrable
@@ -42,9 +43,11 @@ SLEW_PARAMETER = 7
 MIN_SLEW_RAD_S = 1e-12
 
 
-def slew_rate(speed_ref_rad_s: np.ndarray | float) -> np.ndarray | float:
-    """The dcmotor's setpoint slew rate that ramps its reference at ``speed_ref_rad_s``, rad/s."""
-    return np.maximum(np.abs(speed_ref_rad_s), MIN_SLEW_RAD_S)
+@ufunc("float64(float64)")
+def slew_rate(speed_ref_rad_s: float) -> float:
+    """The dcmotor's setpoint slew rate that ramps its reference at ``speed_ref_rad_s``, rad/s (a
+    NumPy ufunc, also called from the compiled control period)."""
+    return max(abs(speed_ref_rad_s), MIN_SLEW_RAD_S)
 
 
 #: Parameters that :meth:`Rig.episode_fields` can change without recompiling the model.

@@ -1,0 +1,196 @@
+"""One control period of N rigs, compiled: the drive's command in; sensors, reward, termination out.
+
+Each kernel is a loop over the rigs being stepped (:mod:`microg_env.compiled`), the same code for
+one rig and for a batch of them, so the single and the vector environment stay bit-identical. Each
+kernel takes the rigs as an index array ``ids``
+into the per-rig state arrays of :class:`~microg_env.envs.core.LandingCore` (it writes them in place)
+and the ``(N, ...)`` data arrays of :mod:`microg_env.sim.physics`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from microg_env.compiled import jit, ufunc
+from microg_env.sim.model import slew_rate
+
+
+@ufunc("float64(float64, float64, float64)")
+def x_reward(x_m: float, scale_m: float, limit_m: float) -> float:
+    """The reward for holding x: 1 - log(1 + (x/scale)^2) / log(1 + (limit/scale)^2).
+
+    In decades: it falls by the same amount for each decade that x grows, from ``scale`` (x's noise
+    floor) to ``limit`` (the guide's half stroke), so it keeps a gradient from millimetres down to
+    nanometres; it is 1 at x = 0 and 0 at the guide's end, never negative, so an episode that ends
+    early only forgoes what it would have earned. A NumPy ufunc: scalars or arrays.
+    """
+    ratio, top = x_m / scale_m, limit_m / scale_m
+    return 1.0 - np.log1p(ratio * ratio) / np.log1p(top * top)
+
+
+@jit
+def drive(
+    ids, positions, actions, previous_action, commands, delay, pending, command, steps, position_ref,
+    drift_n_per_s, drift_dof, qfrc_applied, ctrl, dynprm, servo, slew_index, gear, ideal, max_speed,
+    control_period_s, period_span_s,
+):  # fmt: skip
+    """Send rigs ``ids`` their speed commands for the next period: ``commands[j]`` (m/s) where
+    ``commands`` has a command per rig, else the rig's action ``actions[positions[j]]`` times
+    ``max_speed`` (the action's unit); the action is kept as the rig's previous one.
+
+    The command is clipped to the drive's range and, with the control delay, swapped for the one
+    sent a period earlier. The drive interpolates its position reference as a ramp at the commanded
+    speed: the dcmotor's slew limiter (``dynprm[..., slew_index]``) moves its setpoint, the period's
+    end, at that rate; the ideal drive takes the speed itself. The balancer's drift force grows with
+    the period's start time. Advances each rig's step count and reference to the period's end.
+    """
+    for j in range(ids.size):
+        i = ids[j]
+        action = actions[positions[j]]
+        previous_action[i] = action
+        value = commands[j] if commands.size else action * max_speed
+        value = min(max(value, -max_speed), max_speed)
+        if delay:
+            value, pending[i] = pending[i], value
+        command[i] = value
+        qfrc_applied[i, drift_dof] = drift_n_per_s[i] * (steps[i] * control_period_s)
+        speed = value * gear
+        end = position_ref[i] + speed * period_span_s
+        if ideal:
+            ctrl[i, 0] = speed
+        else:
+            dynprm[i, servo, slew_index] = slew_rate(speed)
+            ctrl[i, 0] = end
+            ctrl[i, 1] = speed
+        position_ref[i] = end
+        steps[i] += 1
+
+
+@jit
+def observe(
+    ids, qpos, sensordata, screw_qpos, qzs_qpos, accel_adr, force_adr, gravity,
+    noisy, noise, bias, resolution, normals, used,
+    last_readings, fresh, accelerometer, placed_load_kg, previous_action, base_command, scales,
+    control_period_s, observation, reward_x, reward_scale_m, x_limit_m,
+    screw_low, screw_high, floor_m, codes_out, next_load, load_count, switch_height_m, height_out,
+):  # fmt: skip
+    """Read the sensors of rigs ``ids`` into their ``observation`` rows, and score and check them.
+
+    The sensors (:class:`~microg_env.sim.sensors.SensorModel`): ruler (x), encoder (support
+    position), accelerometer (g removed) and pad force, each plus its bias and its noise (``noisy``;
+    the next of each rig's standard normal ``normals``), ruler and encoder quantised to their
+    ``resolution``; rates by backward difference (0 at a rig's first reading). The observation is
+    each reading over its scale, as float32. ``reward_x[i]`` is :func:`x_reward` of the true x;
+    ``codes_out[j]`` the termination code (0: going on; 1 guide stroke, 2 screw stroke, 3 pad
+    bottomed out).
+
+    First, though, the rigs whose foot has come down to their next test weight's switch height
+    (``switch_height_m``; ``height_out[j]`` its height, NaN for the others): if any has, nothing is
+    read and it returns -1, for the weights to be placed and the call made again. Else it returns 1
+    if some rig has used up its noise draws, 0 if not.
+    """
+    due = False
+    for j in range(ids.size):
+        i = ids[j]
+        height_out[j] = np.nan
+        if next_load[i] < load_count[i]:
+            height = qpos[i, screw_qpos] + qpos[i, qzs_qpos]
+            if height <= switch_height_m[i, next_load[i]]:
+                height_out[j] = height
+                due = True
+    if due:
+        return -1
+    exhausted = 0
+    readings = np.empty(4)
+    for j in range(ids.size):
+        i = ids[j]
+        x = qpos[i, qzs_qpos]
+        screw = qpos[i, screw_qpos]
+        readings[0] = x
+        readings[1] = screw
+        readings[2] = sensordata[i, accel_adr] - gravity[i]
+        readings[3] = sensordata[i, force_adr]
+        if noisy:
+            row = used[i]
+            for k in range(4):
+                readings[k] = readings[k] + bias[k] + noise[k] * normals[i, row, k]
+            for k in range(2):
+                readings[k] = np.rint(readings[k] / resolution[k]) * resolution[k]
+            used[i] = row + 1
+            if row + 1 >= normals.shape[1]:
+                exhausted = 1
+        x_rate = 0.0
+        support_velocity = 0.0
+        if not fresh[i]:
+            x_rate = (readings[0] - last_readings[0, i]) / control_period_s
+            support_velocity = (readings[1] - last_readings[1, i]) / control_period_s
+        last_readings[0, i] = readings[0]
+        last_readings[1, i] = readings[1]
+        accelerometer[i] = readings[2]
+        fresh[i] = False
+        raw = (
+            readings[0], x_rate, readings[1], support_velocity, readings[2], readings[3],
+            readings[1] + readings[0], placed_load_kg[i], previous_action[i], base_command[i],
+        )  # fmt: skip
+        for k in range(10):
+            observation[i, k] = np.float32(raw[k] / scales[k])
+        reward_x[i] = x_reward(x, reward_scale_m, x_limit_m)
+        code = 0
+        if screw + x <= floor_m:
+            code = 3
+        if screw <= screw_low or screw >= screw_high:
+            code = 2
+        if abs(x) >= x_limit_m:
+            code = 1
+        codes_out[j] = code
+    return exhausted
+
+
+@jit
+def tally(ids, positions, codes, steps, max_steps, reward_x, total, periods, codes_out, truncated, going):
+    """Add one period of rigs ``ids`` (at ``positions`` of the step's outputs) to the step's sums;
+    ``going[j]``: rig j neither terminated nor reached its last step. Returns how many go on."""
+    count = 0
+    for j in range(ids.size):
+        i, p = ids[j], positions[j]
+        total[p] += reward_x[i]
+        periods[p] += 1
+        codes_out[p] = codes[j]
+        truncated[p] = codes[j] == 0 and steps[i] >= max_steps[i]
+        going[j] = codes[j] == 0 and not truncated[p]
+        count += going[j]
+    return count
+
+
+@jit
+def state(
+    ids, qpos, qvel, qacc, sensordata, actuator_force, qfrc_applied, screw_qpos, qzs_qpos, screw_dof, qzs_dof,
+    servo, force_adr, drift_on_qzs, x_stiffness, steps, control_period_s, accelerometer, placed_load_kg,
+    next_load, command, setpoint_m, reference_weight_n, reward_x, out,
+):  # fmt: skip
+    """The true physical state of rigs ``ids``, one row of ``out`` per rig in the order of the
+    environment's ``INFO_KEYS`` (without the termination reason)."""
+    for j in range(ids.size):
+        i = ids[j]
+        x = qpos[i, qzs_qpos]
+        deviation = -x_stiffness[i] * x
+        if drift_on_qzs:
+            deviation = deviation + qfrc_applied[i, qzs_dof]
+        row = out[j]
+        row[0] = steps[i] * control_period_s
+        row[1] = x
+        row[2] = qpos[i, screw_qpos] + x
+        row[3] = qvel[i, screw_dof] + qvel[i, qzs_dof]
+        row[4] = qacc[i, screw_dof] + qacc[i, qzs_dof]
+        row[5] = accelerometer[i]
+        row[6] = qpos[i, screw_qpos]
+        row[7] = qvel[i, screw_dof]
+        row[8] = deviation
+        row[9] = sensordata[i, force_adr]
+        row[10] = placed_load_kg[i]
+        row[11] = next_load[i] - 1
+        row[12] = command[i]
+        row[13] = setpoint_m[i] if setpoint_m.size else 0.0
+        row[14] = actuator_force[i, servo]
+        row[15] = deviation / reference_weight_n[i]
+        row[16] = reward_x[i]
