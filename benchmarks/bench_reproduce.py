@@ -25,19 +25,21 @@ from microg_env.envs.landing import MicroGravityLandingEnv
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--duration", type=float, default=30.0, help="simulated time per run (default 30 s)")
     args = parser.parse_args(argv)
     env = MicroGravityLandingEnv(condition=1)
     controller = make_controller("pid", env.control_period_s)
-    baseline = median_seconds(lambda: run_episode(env, controller, seed=0), args.repeats)
+    baseline = median_seconds(lambda: run_episode(env, controller, seed=0, duration_s=args.duration), args.repeats)
     with tempfile.TemporaryDirectory() as folder:
         out = str(Path(folder) / "reproduction")
 
         def reproduce() -> None:
-            assert microg(["reproduce", "--out", out, "--quiet"]) == 0
+            assert microg(["reproduce", "--out", out, "--quiet", "--duration", str(args.duration)]) == 0
 
         total = median_seconds(reproduce, args.repeats)
     print(
-        f"microg reproduce: {total:.2f} s (median of {args.repeats}); one 30 s episode: {baseline:.3f} s; "
+        f"microg reproduce: {total:.2f} s (median of {args.repeats}); "
+        f"one {args.duration:g} s episode: {baseline:.3f} s; "
         f"ratio {total / baseline:.1f}"
     )
     return 0

@@ -1,45 +1,88 @@
-"""Wall time of a 30 s test condition under the PID baseline, beside bare mj_step on the same model.
+"""Throughput of the single environment on a 30 s test condition, against bare mj_step replaying its inputs.
 
-For each condition it times, several times over and reporting medians:
+For each controller it times, interleaved over ``--repeats`` rounds and reporting medians:
 
-* ``episode``: ``run_episode`` - the environment stepped at 1 kHz by the PID for 30 s of simulated
-  time, every imperfection on, the trajectory recorded (what ``microg run`` simulates);
-* ``run``: ``run_with_metrics`` - the episode plus the ideal-microgravity reference and the metrics
-  (all of ``microg run`` but printing);
-* ``bare mj_step``: the same model stepped for the same number of physics steps with no Python
-  around it, measured in the same process as the baseline the ratios refer to.
+* ``episode``: ``run_episode`` - the environment stepped at 1 kHz by the controller for the
+  condition's 30 s, every imperfection on, the trajectory recorded (what ``microg run`` simulates);
+* ``bare``: the same model and ``MjData`` stepped for the same physics steps with nothing but the
+  episode's recorded drive inputs (``ctrl``, the slew rate, the balancer's drift force) written
+  before each control period's ``mj_step`` - the floor any controller loop in Python can reach.
 
-Usage: ``python benchmarks/bench_run.py [--repeats N]``.
+The ratio bare/episode is the environment's throughput as a share of that floor (1: no overhead).
+The residual policy is ``residual-ppo`` (acting every 5 periods on ``feedforward``).
+
+Usage: ``python benchmarks/bench_run.py [--repeats N] [--condition N] [--controllers pid,feedforward]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
 import sys
+import time
 
 import mujoco
-from timing import median_seconds
 
-from microg_env.analysis.evaluate import run_episode, run_with_metrics
+from microg_env.analysis.evaluate import run_episode
 from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.sim.model import SLEW_PARAMETER
+
+
+def replay_inputs(env: MicroGravityLandingEnv, controller, seed: int) -> tuple[list, int]:
+    """The drive inputs written before each control period of one episode, and the steps per period."""
+    inputs = []
+    core = env.core
+
+    def record(env, info) -> None:
+        inputs.append(
+            (
+                env.unwrapped.data.ctrl.copy(),
+                float(core.physics.model.actuator_dynprm[core.rig.servo, SLEW_PARAMETER]),
+                env.unwrapped.data.qfrc_applied.copy(),
+            )
+        )
+
+    run_episode(env, controller, seed=seed, on_step=record)
+    return inputs[1:], env.frame_skip  # the first is the reset's
+
+
+def bare(env: MicroGravityLandingEnv, inputs: list, frame_skip: int) -> None:
+    """``mj_step`` over the episode's periods with its recorded inputs and no other Python."""
+    model, data, servo = env.model, mujoco.MjData(env.model), env.core.rig.servo
+    env.rig.reset(data, env.active_scenario.descent_height_m)
+    dynprm, ctrl, qfrc = model.actuator_dynprm, data.ctrl, data.qfrc_applied
+    for control, slew, force in inputs:
+        ctrl[:] = control
+        dynprm[servo, SLEW_PARAMETER] = slew
+        qfrc[:] = force
+        mujoco.mj_step(model, data, nstep=frame_skip)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--condition", type=int, default=1)
+    parser.add_argument("--controllers", default="pid,feedforward,residual-ppo")
     args = parser.parse_args(argv)
-    print(f"{'condition':<10}{'episode [s]':>13}{'run [s]':>10}{'bare mj_step [s]':>18}{'episode/bare':>14}")
-    for number in (1, 2, 3):
-        env = MicroGravityLandingEnv(condition=number)
-        controller = make_controller("pid", env.control_period_s)
-        episode = median_seconds(lambda env=env, c=controller: run_episode(env, c, seed=0), args.repeats)
-        full = median_seconds(lambda env=env, c=controller: run_with_metrics(env, c, seed=0), args.repeats)
-        steps = round(env.active_scenario.duration_s / env.control_period_s) * env.frame_skip
-        data = mujoco.MjData(env.model)
-        env.rig.reset(data, env.active_scenario.descent_height_m)
-        bare = median_seconds(lambda m=env.model, d=data, n=steps: mujoco.mj_step(m, d, nstep=n), args.repeats)
-        print(f"{number:<10}{episode:>13.3f}{full:>10.3f}{bare:>18.3f}{episode / bare:>14.1f}")
+    print(f"condition {args.condition}, medians of {args.repeats} interleaved rounds")
+    print(f"{'controller':<14}{'episode [s]':>13}{'bare [s]':>10}{'bare/episode':>14}{'steps/s':>10}")
+    for name in args.controllers.split(","):
+        env = MicroGravityLandingEnv(condition=args.condition)
+        controller = make_controller(name, env.control_period_s)
+        inputs, frame_skip = replay_inputs(env, controller, seed=0)
+        episodes, floors = [], []
+        for _ in range(args.repeats):
+            start = time.perf_counter()
+            run_episode(env, controller, seed=0)
+            episodes.append(time.perf_counter() - start)
+            start = time.perf_counter()
+            bare(env, inputs, frame_skip)
+            floors.append(time.perf_counter() - start)
+        episode, floor = statistics.median(episodes), statistics.median(floors)
+        ratios = statistics.median(f / e for f, e in zip(floors, episodes, strict=True))
+        print(f"{name:<14}{episode:>13.3f}{floor:>10.3f}{ratios:>14.2f}{len(inputs) / episode:>10.0f}")
+        env.close()
     return 0
 
 

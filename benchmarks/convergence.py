@@ -17,7 +17,7 @@ import sys
 
 from microg_env.analysis.evaluate import run_with_metrics
 from microg_env.analysis.metrics import MEASURED_METRICS, RunMetrics
-from microg_env.controllers.pid import make_controller
+from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 
 RELATIVE_TOLERANCE = 0.01

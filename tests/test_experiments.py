@@ -18,7 +18,7 @@ import pytest
 
 from microg_env.analysis.metrics import RunMetrics
 from microg_env.experiments.campaign import Campaign
-from microg_env.experiments.runner import run, run_all
+from microg_env.experiments.runner import run, run_all, run_each
 from microg_env.experiments.spec import RunSpec
 from microg_env.experiments.store import ResultStore, result_row
 from microg_env.params import PHYSICS_STEP_S
@@ -442,3 +442,20 @@ def test_campaign_refuses_zero_cpus_and_a_folder_of_another_campaign(tmp_path):
     assert other.returncode == 2
     assert "holds the results of campaign 'theirs'" in other.stderr
     assert json.loads((out / "campaign.json").read_text()) == {"name": "theirs"}
+
+
+def test_run_each_on_two_processes_gives_the_runs_of_run_in_order():
+    """The reproduction's runs in parallel: each result, trajectories included, is what run gives."""
+    specs = [
+        RunSpec("condition-1", "pid", 0, duration_s=0.3),
+        RunSpec("condition-3", "feedforward", 1, duration_s=0.6),
+        RunSpec("condition-2", "pid", 2, {"balancer.placement": "support_lander"}, duration_s=0.4),
+    ]
+    steps = []
+    parallel = run_each(specs, workers=2, progress=steps.append)
+    assert sorted(steps) == [300, 400, 600]
+    for spec, result in zip(specs, parallel, strict=True):
+        alone = run(spec)
+        assert result.spec == spec and repr(result.metrics) == repr(alone.metrics)  # NaN where unreached
+        assert np.array_equal(result.trajectory.x_m, alone.trajectory.x_m)
+        assert np.array_equal(result.reference.foot_height_m, alone.reference.foot_height_m)

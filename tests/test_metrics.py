@@ -1,16 +1,21 @@
 """Metrics against closed forms, on synthetic trajectories and on the ideal reference."""
 
 import math
+import tempfile
 from dataclasses import replace
+from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
 from microg_env.analysis.metrics import compute_metrics, contacts, descent_acceleration, landing, stage_windows
-from microg_env.analysis.trajectory import Trajectory
+from microg_env.analysis.trajectory import CHANNELS, Trajectory
 from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
 from microg_env.sim.contact import SpringDamperContact
+from microg_env.sim import reference as reference_module
+from microg_env.sim.model import build_pad_test
 from microg_env.sim.reference import simulate_reference
 
 DT = 1e-3
@@ -150,3 +155,47 @@ def test_weights_placed_together_are_not_called_never_reached():
     metrics = compute_metrics(_reference(scenario, 4.0), _reference(scenario, 4.0))
     assert "placed together with the next" in metrics.unavailable["descent_accel_m_s2[0]"]
     assert metrics.descent_accel_m_s2[1] == pytest.approx(metrics.ideal_descent_accel_m_s2[1], rel=1e-6)
+
+
+def test_a_reference_cut_from_a_longer_one_is_the_one_simulated_alone():
+    """References are kept and a shorter one cut from a longer one: bit for bit what simulating it
+    alone gives, in new arrays (a caller writing into one cannot change the kept one)."""
+    scenario = CONDITIONS[3]
+    reference_module._kept.clear()
+    alone = simulate_reference(scenario, PARAMS, 1e-3, 1e-4, 2.5)
+    reference_module._kept.clear()
+    longer = simulate_reference(scenario, PARAMS, 1e-3, 1e-4, 6.0)
+    cut = simulate_reference(scenario, PARAMS, 1e-3, 1e-4, 2.5)
+    assert len(cut) == len(alone) == 2501 and len(longer) == 6001
+    for name in CHANNELS:
+        assert np.array_equal(getattr(cut, name), getattr(alone, name)), name
+    cut.x_m[:] = 1.0
+    cut.foot_height_m[:] = 1.0
+    again = simulate_reference(scenario, PARAMS, 1e-3, 1e-4, 2.5)
+    assert np.array_equal(again.foot_height_m, alone.foot_height_m)
+
+
+def test_the_reference_key_holds_every_parameter_the_reference_model_reads():
+    """Parameters left out of the reference's key (the QZS but its stroke, the balancer, the drive,
+    the sensors, the drift) must not change the lander-and-pad model; those in it must."""
+    base = RigParams()
+    others = replace(
+        base,
+        qzs=replace(base.qzs, residual_stiffness_n_per_m=-base.qzs.residual_stiffness_n_per_m, guide_friction_n=0.1),
+        balancer=replace(base.balancer, placement="support_lander"),
+        servo=replace(base.servo, cogging_torque_n_m=0.0, speed_loop_gain_hz=50.0),
+        sensors=replace(base.sensors, ruler_noise_m=1e-7),
+        drift=replace(base.drift, max_temperature_rate_k_per_s=0.0),
+    )
+    key = reference_module.reference_key
+    assert key(CONDITIONS[1], others, 1e-3, 1e-4) == key(CONDITIONS[1], base, 1e-3, 1e-4)
+
+    def saved(params: RigParams) -> bytes:
+        path = Path(tempfile.mkdtemp()) / "pad.mjb"
+        mujoco.mj_saveModel(build_pad_test(params).model, str(path))
+        return path.read_bytes()
+
+    assert saved(others) == saved(base)
+    heavier = replace(base, lander=replace(base.lander, mass_kg=600.0))
+    assert key(CONDITIONS[1], heavier, 1e-3, 1e-4) != key(CONDITIONS[1], base, 1e-3, 1e-4)
+    assert saved(heavier) != saved(base)

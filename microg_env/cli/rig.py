@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -17,6 +18,7 @@ from microg_env.cli.common import (
     add_pad_options,
     add_physics_step_option,
     controller_name,
+    count,
     naming,
     number,
     pad_from_options,
@@ -282,7 +284,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         file=ProgressStream(sys.stderr),
         disable=args.quiet,
     ) as bar:
-        runs = reproduction.compute(duration_s=duration, seed=args.seed, progress=bar.update)
+        runs = reproduction.compute(duration_s=duration, seed=args.seed, progress=bar.update, workers=args.workers)
     report.write(runs, out)
     print(f"wrote {out / 'report.md'}")
     return 0
@@ -369,6 +371,13 @@ def add_commands(commands) -> None:
     reproduce.add_argument("--out", default=DEFAULT_REPORT_DIR, metavar="DIR", help="report folder (replaced)")
     add_duration_option(reproduce, "simulated time per run (default 30)")
     reproduce.add_argument("--seed", type=seed_number, default=0, help="seed of sensor noise and drift")
+    reproduce.add_argument(
+        "--workers",
+        type=count(64),
+        default=os.cpu_count() or 1,
+        metavar="N",
+        help="processes running the independent runs at once (default: every core)",
+    )
     reproduce.add_argument("--quiet", action="store_true", help="no progress bar")
     reproduce.set_defaults(handler=_cmd_reproduce)
 

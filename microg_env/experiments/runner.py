@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import platform
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from functools import cache
 from importlib import metadata
@@ -84,6 +85,32 @@ def run(
     finally:
         env.close()
     return RunResult(spec, metrics, None, gains, time.perf_counter() - start, versions(), trajectory, reference)
+
+
+def run_each(
+    specs: Sequence[RunSpec], workers: int | None = None, progress: Callable[[int], None] | None = None
+) -> list[RunResult]:
+    """:func:`run` of each of ``specs`` (with its trajectories), in order; independent runs on
+    ``workers`` processes at once (default: every core; 1: here, one after another), the longest
+    first. ``progress(steps)``: a run's control steps as it ends. Raises on the first bad spec."""
+    workers = min(workers or os.cpu_count() or 1, len(specs))
+    order = sorted(range(len(specs)), key=lambda i: -(specs[i].duration_s or math.inf))  # None: the whole schedule
+    results: list[RunResult | None] = [None] * len(specs)
+
+    def done(i: int, result: RunResult) -> None:
+        results[i] = result
+        if progress is not None:
+            progress(len(result.trajectory) - 1)
+
+    if workers <= 1:
+        for i in order:
+            done(i, run(specs[i]))
+        return results
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = {pool.submit(run, specs[i]): i for i in order}
+        for future in as_completed(futures):
+            done(futures[future], future.result())
+    return results
 
 
 def run_many(

@@ -4,17 +4,34 @@ The same lander and pad, no rig: the lander with the weights placed so far (mass
 a uniform field m g / (M + m) from the scenario's descent height, the field and the mass changing
 when the scenario places a weight, exactly as on an ideal rig. Sampled at the control period, it
 is the yardstick of :func:`microg_env.analysis.metrics.compute_metrics`.
+
+Many runs share one reference (a PID's gains, the QZS, the balancer, the drive and the sensors do
+not enter it; a shorter run's is a prefix of a longer one's): the last few are kept, by what enters
+them (:func:`reference_key`), and a shorter one is cut from a longer one, bit for bit the same.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import mujoco
 import numpy as np
 
-from microg_env.analysis.trajectory import Trajectory
+from microg_env.analysis.trajectory import CHANNELS, Trajectory
 from microg_env.params import RigParams
 from microg_env.scenarios import Scenario
 from microg_env.sim.model import build_pad_test, pad_contact_solref
+
+#: References kept for reuse (each 30 s one is ~2 MB).
+KEPT = 8
+_kept: dict[tuple, Trajectory] = {}
+
+
+def reference_key(scenario: Scenario, params: RigParams, control_period_s: float, physics_step_s: float) -> tuple:
+    """What a reference depends on: the schedule, the parts of ``params`` the lander-and-pad model
+    (:func:`~microg_env.sim.model.build_pad_test`) is built from, and the steps."""
+    parts = (params.lander, params.pad, params.qzs.stroke_m, params.screw, params.gravity_m_s2)
+    return (scenario, *parts, control_period_s, physics_step_s)
 
 
 def simulate_reference(
@@ -24,9 +41,31 @@ def simulate_reference(
     physics_step_s: float,
     duration_s: float | None = None,
 ) -> Trajectory:
-    """Simulate the ideal landing of ``scenario`` with the lander, pad and gravity of ``params`` for
-    ``duration_s`` (default: the scenario's), sampled at ``control_period_s``."""
+    """The ideal landing of ``scenario`` with the lander, pad and gravity of ``params`` for
+    ``duration_s`` (default: the scenario's), sampled at ``control_period_s``: simulated, or cut
+    from a longer one kept from an earlier call."""
     duration_s = scenario.duration_s if duration_s is None else duration_s
+    steps = round(duration_s / control_period_s)
+    key = reference_key(scenario, params, control_period_s, physics_step_s)
+    kept = _kept.get(key)
+    if kept is None or len(kept) < steps + 1:
+        kept = _simulate(scenario, params, control_period_s, physics_step_s, steps)
+        _kept.pop(key, None)
+        _kept[key] = kept
+        while len(_kept) > KEPT:
+            del _kept[next(iter(_kept))]
+    return _prefix(kept, steps + 1)
+
+
+def _prefix(trajectory: Trajectory, length: int) -> Trajectory:
+    """The first ``length`` samples of ``trajectory``, as new arrays."""
+    arrays = {name: getattr(trajectory, name)[:length].copy() for name in CHANNELS}
+    return replace(trajectory, **arrays)
+
+
+def _simulate(
+    scenario: Scenario, params: RigParams, control_period_s: float, physics_step_s: float, steps: int
+) -> Trajectory:
     frame_skip = round(control_period_s / physics_step_s)
     pad_test = build_pad_test(params, physics_step_s=physics_step_s)
     model = pad_test.model
@@ -49,7 +88,6 @@ def simulate_reference(
     placed = scenario.loads_due(scenario.descent_height_m, 0)
     placed_kg = place(placed)
     mujoco.mj_forward(model, data)
-    steps = round(duration_s / control_period_s)
     time, height, velocity, accel, force, load, stage = (np.zeros(steps + 1) for _ in range(7))
     for k in range(steps + 1):
         if k:

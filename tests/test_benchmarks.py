@@ -1,0 +1,36 @@
+"""Every benchmark script imports and runs to its end on a tiny budget, so none can rot."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+#: Each script with arguments that make it quick (its physics shortened, one repeat).
+SMOKE_ARGS = {
+    "bench_run": ["--repeats", "1", "--controllers", "pid,feedforward"],
+    "bench_batch": ["--sizes", "2", "--periods", "20", "--repeats", "1"],
+    "bench_reproduce": ["--repeats", "1", "--duration", "0.5"],
+    "convergence": ["--steps-us", "100", "25", "--duration", "0.2"],
+}
+
+
+def test_every_benchmark_script_has_a_smoke_run() -> None:
+    scripts = {path.stem for path in BENCHMARKS.glob("*.py")} - {"timing"}
+    assert scripts == set(SMOKE_ARGS)
+
+
+@pytest.mark.parametrize("name", sorted(SMOKE_ARGS))
+def test_benchmark_script_runs(name: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    module = importlib.import_module(name)
+    try:
+        assert module.main(SMOKE_ARGS[name]) == 0
+    finally:
+        sys.modules.pop(name, None)
+    printed = capsys.readouterr().out
+    assert printed.strip(), f"{name} printed nothing"
