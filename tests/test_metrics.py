@@ -13,8 +13,8 @@ from microg_env.analysis.metrics import compute_metrics, contacts, descent_accel
 from microg_env.analysis.trajectory import CHANNELS, Trajectory
 from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
-from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim import reference as reference_module
+from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.model import build_pad_test
 from microg_env.sim.reference import simulate_reference
 
@@ -166,7 +166,8 @@ def test_a_reference_cut_from_a_longer_one_is_the_one_simulated_alone():
     reference_module._kept.clear()
     longer = simulate_reference(scenario, PARAMS, 1e-3, 1e-4, 6.0)
     cut = simulate_reference(scenario, PARAMS, 1e-3, 1e-4, 2.5)
-    assert len(cut) == len(alone) == 2501 and len(longer) == 6001
+    assert len(cut) == len(alone) == 2501
+    assert len(longer) == 6001
     for name in CHANNELS:
         assert np.array_equal(getattr(cut, name), getattr(alone, name)), name
     cut.x_m[:] = 1.0
