@@ -86,31 +86,26 @@ class Feedforward(VectorController):
         self.control_period_s = control_period_s
         screw, servo = params.screw, params.servo
         unit = flexible_unit(params)
-        self._mass = params.lander.mass_kg
-        self._gravity = params.gravity_m_s2
-        self._x_stiffness = unit.x_stiffness_n_per_m
-        on_support = params.balancer.placement == "frame_support"
-        self._support_stiffness = unit.balancer_stiffness_n_per_m if on_support else 0.0
-        self._viscous = screw.viscous_n_s_per_m
-        self._gear = screw.gear_rad_per_m
-        self._kp, self._kd = speed_loop_gains(params)
-        self._inertia = drive_inertia_kg_m2(params)
-        self._servo = servo
+        #: The feed-forward's constants, in the order :func:`feedforward_actions` takes them.
+        self.constants = (
+            control_period_s, self.settings.velocity_observer_gain, self.settings.prediction_horizon_s,
+            params.lander.mass_kg, params.gravity_m_s2, unit.x_stiffness_n_per_m,
+            unit.balancer_stiffness_n_per_m if params.balancer.placement == "frame_support" else 0.0,
+            screw.viscous_n_s_per_m, screw.gear_rad_per_m, *speed_loop_gains(params), drive_inertia_kg_m2(params),
+            servo.cogging_torque_n_m, float(servo.cogging_cycles_per_rev), servo.bristle_stiffness_n_m_per_rad,
+            servo.bristle_damping_n_m_s_per_rad, servo.coulomb_torque_n_m, servo.static_torque_n_m,
+            servo.stribeck_speed_rad_s,
+        )  # fmt: skip
 
     @property
     def setpoint_m(self) -> np.ndarray:
         return self.pid.setpoint_m
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
-        servo = self._servo
         actions = np.empty(ids.size, dtype=np.float32)
         feedforward_actions(
-            rows, ids, SCALES, self._start, self._velocity, self._reference_offset, self._bristle,
-            self.control_period_s, self.settings.velocity_observer_gain, self.settings.prediction_horizon_s,
-            self._mass, self._gravity, self._x_stiffness, self._support_stiffness, self._viscous, self._gear,
-            self._kp, self._kd, self._inertia, servo.cogging_torque_n_m, float(servo.cogging_cycles_per_rev),
-            servo.bristle_stiffness_n_m_per_rad, servo.bristle_damping_n_m_s_per_rad, servo.coulomb_torque_n_m,
-            servo.static_torque_n_m, servo.stribeck_speed_rad_s, actions, *self.pid.loop(),
+            rows, ids, SCALES, self._start, self._velocity, self._reference_offset, self._bristle, *self.constants,
+            actions, *self.pid.loop(),
         )  # fmt: skip
         return actions
 

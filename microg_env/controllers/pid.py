@@ -80,25 +80,20 @@ class PID(VectorController):
         self.gains = gains
         self.control_period_s = control_period_s
         self.derivative_on_measurement = derivative_on_measurement
-        self._alpha = control_period_s / (gains.derivative_filter_s + control_period_s)
+        alpha = control_period_s / (gains.derivative_filter_s + control_period_s)  # the derivative's filter
+        #: The loop's constants, in the order :func:`pid_command` takes them.
+        self.constants = (
+            gains.kp_per_s, gains.ki_per_s2, gains.kd, alpha, gains.integral_limit_m_s, control_period_s, MAX_SPEED_M_S
+        )  # fmt: skip
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         actions = np.empty(ids.size, dtype=np.float32)
-        g = self.gains
-        pid_actions(
-            rows, ids, SCALES, self.derivative_on_measurement, self.setpoint_m, self._integral, self._derivative,
-            g.kp_per_s, g.ki_per_s2, g.kd, self._alpha, g.integral_limit_m_s, self.control_period_s, MAX_SPEED_M_S,
-            actions,
-        )  # fmt: skip
+        pid_actions(rows, ids, SCALES, self.derivative_on_measurement, *self.loop(), actions)
         return actions
 
     def loop(self) -> tuple:
-        """The arguments of :func:`pid_command` after ``i, x, rate, bias``: this loop's state and gains."""
-        g = self.gains
-        return (
-            self.setpoint_m, self._integral, self._derivative, g.kp_per_s, g.ki_per_s2, g.kd, self._alpha,
-            g.integral_limit_m_s, self.control_period_s, MAX_SPEED_M_S,
-        )  # fmt: skip
+        """The arguments of :func:`pid_command` after ``i, x, rate, bias``: this loop's state and constants."""
+        return (self.setpoint_m, self._integral, self._derivative, *self.constants)
 
 
 @jit

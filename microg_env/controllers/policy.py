@@ -25,6 +25,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from microg_env.compiled import jit
 from microg_env.controllers.base import MAX_SPEED_M_S, SetpointController, VectorController
 from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES
 from microg_env.params import CONTROL_PERIOD_S
@@ -65,11 +66,12 @@ class MLPPolicy:
             if weight.ndim != 2 or weight.shape[1] != size or bias.shape != (weight.shape[0],):
                 raise ValueError(f"layer shapes do not chain: weight {weight.shape}, bias {bias.shape}, input {size}")
             size = weight.shape[0]
+        object.__setattr__(self, "_obs_std", np.sqrt(self.obs_var + self.epsilon))  # once, not every call
 
     def normalize(self, observation: np.ndarray) -> np.ndarray:
         """VecNormalize's observation normalisation with the training statistics."""
-        scaled = (observation - self.obs_mean) / np.sqrt(self.obs_var + self.epsilon)
-        return np.clip(scaled, -self.clip_obs, self.clip_obs)
+        scaled = (observation - self.obs_mean) / self._obs_std
+        return np.minimum(np.maximum(scaled, -self.clip_obs), self.clip_obs)
 
     def predict(self, observation: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
         z = self.normalize(np.asarray(observation, dtype=np.float64))
@@ -78,7 +80,7 @@ class MLPPolicy:
             z = z @ weight.T + bias
             if i < len(self.weights) - 1:
                 z = act(z)
-        action = np.tanh(z) if self.squash else np.clip(z, -1.0, 1.0)
+        action = np.tanh(z) if self.squash else np.minimum(np.maximum(z, -1.0), 1.0)
         return action.astype(np.float32), None
 
     def save(self, path: str | Path) -> None:
@@ -144,10 +146,8 @@ class PolicyController(VectorController):
         self.residual_limit_m = validate.positive("residual_limit_m", residual_limit_m, "m", 1e-3)
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
-        periods = self._periods[ids]
-        self._periods[ids] = periods + 1
-        due = periods % self.decision_period == 0
-        if due.any():
+        due = np.empty(ids.size, dtype=np.bool_)
+        if count_periods(ids, self._periods, self.decision_period, due):
             acting = ids[due]
             seen = np.array(rows[due], dtype=np.float32)  # what the training environment showed
             seen[:, OBSERVATION_INDEX["previous_action"]] = self._action[acting]
@@ -163,6 +163,19 @@ class PolicyController(VectorController):
         command = self.base.act(rows, ids)  # grown with this controller (a part of it)
         self._base_command_m_s[ids] = command.astype(np.float64) * MAX_SPEED_M_S
         return command
+
+
+@jit
+def count_periods(ids, periods, decision_period, due):
+    """Count a control period of rigs ``ids``; ``due[j]``: rig j's policy acts in it (its first
+    period, then every ``decision_period``). Returns how many are due."""
+    count = 0
+    for j in range(ids.size):
+        i = ids[j]
+        due[j] = periods[i] % decision_period == 0
+        periods[i] += 1
+        count += due[j]
+    return count
 
 
 # -- shipped policies ---------------------------------------------------------------------------

@@ -1,7 +1,8 @@
 """The environment's observation: what the rig's sensors give, each divided by a scale.
 
 One owner for the layout, read by the environment (which writes it) and the controllers (which
-decode it, :class:`microg_env.controllers.base.Readings`).
+decode it: the compiled PID and feed-forward by column, Python controllers with
+:class:`microg_env.controllers.base.Readings`).
 """
 
 from __future__ import annotations
