@@ -49,6 +49,7 @@ START_CLEARANCE_M = 1e-3
 ACTION_MODES = ("speed", "residual")
 #: Why an episode terminated, by code (0: it did not).
 TERMINATION_REASONS = (None, "guide_stroke_limit", "screw_stroke_limit", "pad_bottomed_out")
+_REASONS = np.array(TERMINATION_REASONS, dtype=object)  # indexed by the codes: new object arrays
 #: The true physical state (and reward) every step reports in ``info``, in this order.
 INFO_KEYS = (
     "time_s",
@@ -445,7 +446,7 @@ class LandingCore:
         columns = self.state(ids).T.copy()
         values = dict(zip(INFO_KEYS, columns, strict=False))
         values["stage"] = columns[INFO_KEYS.index("stage")].astype(np.int64)
-        values["termination_reason"] = np.array([TERMINATION_REASONS[c] for c in codes], dtype=object)
+        values["termination_reason"] = _REASONS[codes]
         return values
 
 
