@@ -6,7 +6,8 @@ MuJoCo model (friction, cogging, the torque limit) are removed from the paramete
 source, :func:`microg_env.sim.model.build_rig`); the environment applies the others (sensor noise
 and quantisation, one control period of command delay, balancer drift) while it steps.
 :class:`DomainRandomization` draws a perturbed lander, pad, friction and set of test weights for
-each episode; every draw is a model field value, so a reset never recompiles.
+each episode, and with :meth:`DomainRandomization.full` the drive (cogging, motor friction law,
+speed loop, torque filter); every draw is a model field value, so a reset never recompiles.
 """
 
 from __future__ import annotations
@@ -87,10 +88,32 @@ class DomainRandomization:
     pad_stiffness: float = 0.3
     pad_damping: float = 0.3
     friction: float = 0.5
+    #: The drive model (off by default, so that a randomisation written before these existed draws
+    #: the same plants; :meth:`full` turns them on). ``cogging``: the cogging torque's amplitude;
+    #: ``cogging_phase``: its phase, drawn in +-``cogging_phase`` x pi rad (1: anywhere); ``lugre``:
+    #: the motor-side LuGre bristle stiffness and damping and the Stribeck speed, each on its own;
+    #: ``speed_loop``: the speed loop's gain Kv (its bandwidth); ``torque_filter``: the drive's
+    #: torque-filter time constant.
+    cogging: float = 0.0
+    cogging_phase: float = 0.0
+    lugre: float = 0.0
+    speed_loop: float = 0.0
+    torque_filter: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            validate.between(f"DomainRandomization.{f.name}", getattr(self, f.name), 0.0, 1.0, high_open=True)
+            whole = f.name == "cogging_phase"  # a phase anywhere in the cycle is a full width of 1
+            validate.between(f"DomainRandomization.{f.name}", getattr(self, f.name), 0.0, 1.0, high_open=not whole)
+
+    @classmethod
+    def full(cls) -> DomainRandomization:
+        """The plant and the drive as uncertain as an operator's knowledge of them (engineering
+        assumptions, none measured on the paper's rig): the defaults, and the cogging's amplitude
+        +-50 % (catalogue values are typical, not guaranteed) at an unknown phase (nothing on the rig
+        measures the magnets' angle against the screw's zero), the motor's pre-sliding friction law
+        +-50 % (LuGre parameters identified on one rig scatter by that much), the speed loop's gain
+        +-20 % (it is set against an estimated inertia) and the torque filter +-30 %."""
+        return cls(cogging=0.5, cogging_phase=1.0, lugre=0.5, speed_loop=0.2, torque_filter=0.3)
 
     def _lander_range(self, params: RigParams) -> tuple[float, float]:
         mass = params.lander.mass_kg
@@ -152,5 +175,19 @@ class DomainRandomization:
             guide_friction_n=params.qzs.guide_friction_n * f,
             guide_static_friction_n=params.qzs.guide_static_friction_n * f,
         )
+        drive: dict[str, float] = {}  # drawn only where on: the draws above stay those of older versions
+        if self.cogging:
+            drive["cogging_torque_n_m"] = servo.cogging_torque_n_m * scale(self.cogging)
+        if self.cogging_phase:
+            width = self.cogging_phase * math.pi
+            drive["cogging_phase_rad"] = servo.cogging_phase_rad + float(rng.uniform(-width, width))
+        if self.lugre:
+            drive["bristle_stiffness_n_m_per_rad"] = servo.bristle_stiffness_n_m_per_rad * scale(self.lugre)
+            drive["bristle_damping_n_m_s_per_rad"] = servo.bristle_damping_n_m_s_per_rad * scale(self.lugre)
+            drive["stribeck_speed_rad_s"] = servo.stribeck_speed_rad_s * scale(self.lugre)
+        if self.speed_loop:
+            drive["speed_loop_gain_hz"] = servo.speed_loop_gain_hz * scale(self.speed_loop)
+        if self.torque_filter:
+            drive["torque_filter_s"] = servo.torque_filter_s * scale(self.torque_filter)
         validate_loads(loads, lander.mass_kg)
-        return replace(params, lander=lander, pad=pad, servo=servo, qzs=qzs), loads
+        return replace(params, lander=lander, pad=pad, servo=replace(servo, **drive), qzs=qzs), loads

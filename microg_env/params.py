@@ -99,6 +99,7 @@ RANGES: dict[str, tuple[float, float, str]] = {
     "ServoParams.speed_integral_time_s": (1e-5, 10.0, "s"),
     "ServoParams.torque_filter_s": (0.0, 0.1, "s"),
     "ServoParams.cogging_torque_n_m": (0.0, 1e3, "N m"),
+    "ServoParams.cogging_phase_rad": (-2 * math.pi, 2 * math.pi, "rad"),
     "ServoParams.coulomb_torque_n_m": (0.0, 1e3, "N m"),
     "ServoParams.static_torque_n_m": (0.0, 1e3, "N m"),
     "ServoParams.stribeck_speed_rad_s": (1e-6, 1e4, "rad/s"),
@@ -329,6 +330,9 @@ class ServoParams:
     #: Assumption: cogging torque of 0.5 % of rated, 72 cycles per revolution (slots x poles).
     cogging_torque_n_m: float = 0.24
     cogging_cycles_per_rev: int = 72
+    #: Assumption: the cogging's phase at the motor angle 0 (the support at its coordinate 0), rad;
+    #: the torque is A sin(72 theta + phase). Unknown to an operator (nothing on the rig measures it).
+    cogging_phase_rad: float = 0.0
     #: Assumption: LuGre friction of screw bearings and nut at the motor: Coulomb and static
     #: torque, Stribeck speed, bristle stiffness (0.1 mrad pre-sliding) and damping.
     coulomb_torque_n_m: float = 0.6

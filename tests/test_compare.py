@@ -97,6 +97,35 @@ def test_cli_compare_prints_json(capsys):
     assert data["scenarios"]["condition-3"]["duration_s"] == 0.5
 
 
+def test_cli_compare_pairs_against_the_reference_on_randomised_drives(capsys):
+    """--randomize full --reference feedforward: the JSON and the table hold the paired statistics
+    of the comparison; the oracle, told each drawn plant and drive, beats the feed-forward."""
+    args = ["compare", "--controllers", "feedforward,oracle", "--scenarios", "condition-2", "--seeds", "3"]
+    args += ["--duration", "6", "--randomize", "full", "--reference", "feedforward", "--quiet"]
+    assert main([*args, "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["randomize"] == "full"
+    assert data["reference"] == "feedforward"
+    ours = data["paired"]["oracle"]["collision_excursion_m"]
+    cases = {(c["controller"], c["seed"]): c["values"]["collision_excursion_m"] for c in data["cases"]}
+    seeds = range(TEST_SEED, TEST_SEED + 3)
+    assert ours["ratio"] == pytest.approx(
+        sum(cases["oracle", s] for s in seeds) / sum(cases["feedforward", s] for s in seeds)
+    )
+    assert ours["episodes"] == ours["seeds"] == 3
+    assert ours["ratio_high"] < 1.0  # knowing the drive is worth more than chance
+    assert ours["wins"] == 1.0
+    assert ours["sign_p"] == pytest.approx(0.25)  # 3 of 3 seeds: 2 / 2^3
+    assert main([*args]) == 0
+    assert "Paired against `feedforward`" in capsys.readouterr().out
+
+
+def test_cli_compare_refuses_a_reference_it_does_not_run(capsys):
+    code = main(["compare", "--controllers", "pid", "--reference", "feedforward", "--quiet"])
+    assert code == 2
+    assert "--reference: must be one of --controllers pid, got 'feedforward'" in capsys.readouterr().err
+
+
 # The shipped policy: how it was made, and that it does what the README says on held-out cases.
 
 

@@ -15,8 +15,12 @@ from gymnasium.error import ResetNeeded
 from gymnasium.utils.env_checker import check_env
 
 from microg_env import Imperfections, LoadStep, Scenario
+from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import OBSERVATION_SCALES, MicroGravityLandingEnv
+from microg_env.envs.observation import OBSERVATION_INDEX
 from microg_env.imperfections import DomainRandomization
+from microg_env.params import RigParams
+from microg_env.sim.model import drive_inertia_kg_m2
 
 ENV_ID = "microg_env:MicroGravityLanding-v1"
 CONDITIONS_1 = Scenario("condition 1", (LoadStep(0.49),), descent_height_m=0.09)
@@ -261,7 +265,7 @@ def test_the_foot_never_tunnels_through_the_pad():
     back at every depth (the old box pad pulled the lander through past 75 mm) and the episode
     ends where the foot bottoms out on the floor. (A restoring QZS makes the uncontrolled lander go
     down with the support; with Eq. 17's literal sign it would leave the guide first.)"""
-    from microg_env.params import QZSParams, RigParams
+    from microg_env.params import QZSParams
 
     params = RigParams(qzs=QZSParams(residual_stiffness_n_per_m=35510.0))
     env = MicroGravityLandingEnv(condition=1, params=params, imperfections=Imperfections(control_delay=False))
@@ -399,6 +403,62 @@ def test_domain_randomization_changes_the_rig_each_reset_without_recompiling():
     assert env.model.body("lander").mass[0] == env.params.lander.mass_kg
     env.reset(seed=0)
     assert (env.params.pad.stiffness_n_per_m, env.active_scenario.loads[0].mass_kg, env.params.lander.mass_kg) == first
+
+
+def test_the_full_randomisation_draws_the_drive_after_the_plant_and_writes_it_into_the_model():
+    """The drive's draws come after the older ones (a plant drawn by the defaults is unchanged), and
+    every drawn drive parameter reaches the compiled model of the running episode."""
+    plain, full = DomainRandomization(), DomainRandomization.full()
+    params, loads = RigParams(), (0.05, 1.0)
+    old, _ = plain.sample(params, loads, np.random.default_rng(3))
+    new, _ = full.sample(params, loads, np.random.default_rng(3))
+    assert (new.lander, new.pad, new.qzs) == (old.lander, old.pad, old.qzs)
+    assert new.servo.coulomb_torque_n_m == old.servo.coulomb_torque_n_m
+    assert old.servo.cogging_phase_rad == 0.0
+    assert old.servo.speed_loop_gain_hz == 100.0
+    env = MicroGravityLandingEnv(condition=1, domain_randomization=full)
+    phases = set()
+    for seed in range(4):
+        env.reset(seed=seed)
+        servo, motor = env.params.servo, env.model.actuator("servo")
+        phases.add(servo.cogging_phase_rad)
+        assert motor.biasprm[0] == servo.cogging_torque_n_m
+        assert motor.biasprm[2] == servo.cogging_phase_rad
+        assert motor.biasprm[5] == servo.stribeck_speed_rad_s
+        assert motor.dynprm[0] == servo.torque_filter_s
+        assert motor.dynprm[5] == servo.bristle_stiffness_n_m_per_rad
+        assert motor.gainprm[6] == pytest.approx(2 * np.pi * servo.speed_loop_gain_hz * drive_inertia_kg_m2(env.params))
+    assert len(phases) == 4
+    assert max(map(abs, phases)) <= np.pi
+
+
+def test_the_papers_sensor_set_hides_the_pad_force_and_accelerometer_and_nothing_else():
+    """On the paper's sensors the pad force and accelerometer entries read 0 while the pad pushes;
+    a controller that reads neither (the PID) runs the same episode bit for bit on either set, one
+    that reads the pad force (the feed-forward) does not."""
+    runs = {}
+    for sensors in ("extended", "paper"):
+        for name in ("pid", "feedforward"):
+            env = MicroGravityLandingEnv(condition=2, sensor_set=sensors)
+            controller = make_controller(name, env.control_period_s)
+            observation, _ = env.reset(seed=4)
+            controller.reset()
+            rows, forces = [], []
+            for _ in range(4000):  # condition 2 touches down at ~3.4 s
+                observation, _, _, _, info = env.step(controller(observation))
+                rows.append(observation)
+                forces.append(info["pad_force_n"])
+            runs[sensors, name] = np.array(rows), np.array(forces)
+    hidden = [OBSERVATION_INDEX["pad_force"], OBSERVATION_INDEX["lander_accel"]]
+    rows, forces = runs["paper", "pid"]
+    assert forces.max() > 50  # the lander is on the pad
+    assert not rows[:, hidden].any()
+    assert runs["extended", "pid"][0][:, hidden].any()
+    shown = [i for i in range(rows.shape[1]) if i not in hidden]
+    np.testing.assert_array_equal(rows[:, shown], runs["extended", "pid"][0][:, shown])
+    assert not np.array_equal(runs["paper", "feedforward"][0][:, 0], runs["extended", "feedforward"][0][:, 0])
+    with pytest.raises(ValueError, match="sensor_set"):
+        MicroGravityLandingEnv(sensor_set="ruler")
 
 
 def test_impossible_randomisation_is_rejected_at_construction():

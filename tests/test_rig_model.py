@@ -277,7 +277,18 @@ def test_episode_fields_equal_a_fresh_build():
         lander=replace(base.lander, mass_kg=611.0),
         pad=replace(base.pad, stiffness_n_per_m=5100.0, damping_n_s_per_m=170.0),
         qzs=replace(base.qzs, guide_friction_n=0.17, guide_static_friction_n=0.21, guide_damping_n_s_per_m=40.0),
-        servo=replace(base.servo, coulomb_torque_n_m=0.5, static_torque_n_m=0.7),
+        servo=replace(
+            base.servo,
+            coulomb_torque_n_m=0.5,
+            static_torque_n_m=0.7,
+            stribeck_speed_rad_s=0.4,
+            bristle_stiffness_n_m_per_rad=7000.0,
+            bristle_damping_n_m_s_per_rad=8.0,
+            cogging_torque_n_m=0.3,
+            cogging_phase_rad=1.1,
+            speed_loop_gain_hz=90.0,
+            torque_filter_s=1.2e-3,
+        ),
     )
     changed = {path.split(".")[0] for path in EPISODE_PARAMETERS}
     assert changed <= {"lander", "pad", "qzs", "servo"}
@@ -290,8 +301,11 @@ def test_episode_fields_equal_a_fresh_build():
         np.testing.assert_allclose(getattr(rig.model, name), getattr(fresh.model, name), rtol=1e-12, err_msg=name)
     for name in ("dof_damping", "actuator_biasprm", "actuator_dynprm", "actuator_gainprm", "jnt_stiffness"):
         np.testing.assert_allclose(getattr(rig.model, name), getattr(fresh.model, name), rtol=1e-12, err_msg=name)
+    assert rig.model.actuator_biasprm[rig.servo, 2] == 1.1  # the drive's own fields did change
     with pytest.raises(ValueError, match="support_mass_kg"):
         rig.episode_fields(replace(drawn, screw=replace(drawn.screw, support_mass_kg=50.0)), (0.05, 1.0), held, 0.0)
+    with pytest.raises(ValueError, match="torque_filter_s"):  # 0 removes the current's state: a new model
+        rig.episode_fields(replace(drawn, servo=replace(drawn.servo, torque_filter_s=0.0)), (0.05, 1.0), held, 0.0)
 
 
 @pytest.mark.parametrize(

@@ -18,6 +18,7 @@ from microg_env.analysis.evaluate import run_episode
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.envs.vector import MicroGravityLandingVectorEnv
+from microg_env.imperfections import DomainRandomization
 from microg_env.scenarios import LoadStep, Scenario, condition
 
 ENV_ID = "microg_env:MicroGravityLanding-v1"
@@ -42,9 +43,10 @@ def _rollout(env, actions, seed):
     "kwargs",
     [
         {"condition": 3, "domain_randomization": True},  # every imperfection, randomised plants
+        {"condition": 1, "domain_randomization": DomainRandomization.full()},  # and randomised drives
         {"condition": 2, "action_mode": "residual", "base_controller": "feedforward", "decision_period": 3},
     ],
-    ids=["speed-randomised", "residual-feedforward"],
+    ids=["speed-randomised", "speed-randomised-drive", "residual-feedforward"],
 )
 def test_each_rig_runs_exactly_the_single_envs_episode(kwargs):
     """Rig i seeded s + i gives the single env's episode seeded s + i, bit for bit."""
@@ -199,10 +201,12 @@ def test_a_batch_of_episodes_is_the_single_env_episode_of_each():
     """The comparison's batch (controllers, scenarios and randomised plants mixed in one batch)
     records each case exactly as the single-env harness does."""
     cases = [("pid", condition(2), 1000), ("feedforward", condition(3), 1001), ("residual-ppo", condition(1), 1002)]
+    cases += [("oracle", condition(1), 1003), ("oracle", condition(2), 1004)]  # told each rig's own plant
     cases = [(name, replace(scenario, duration_s=0.6), seed) for name, scenario, seed in cases]
-    runs = run_batch([EpisodeSpec(*case) for case in cases], {"domain_randomization": True})
+    drawn = DomainRandomization.full()
+    runs = run_batch([EpisodeSpec(*case) for case in cases], {"domain_randomization": drawn})
     for (name, scenario, seed), (trajectory, params) in zip(cases, runs, strict=True):
-        env = MicroGravityLandingEnv(scenario=scenario, domain_randomization=True)
+        env = MicroGravityLandingEnv(scenario=scenario, domain_randomization=drawn)
         single = run_episode(env, make_controller(name, 1e-3), seed=seed)
         assert params == env.params
         assert trajectory.scenario == env.active_scenario

@@ -17,6 +17,7 @@ import numpy as np
 from gymnasium.utils import seeding
 
 from microg_env.analysis.trajectory import CHANNELS, Trajectory
+from microg_env.controllers.base import tell_plants
 from microg_env.envs.core import TERMINATION_REASONS, LandingCore
 from microg_env.params import RigParams
 from microg_env.scenarios import Scenario
@@ -86,6 +87,7 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
         rigs = np.array([i for i, e in enumerate(episodes) if (e.controller, e.gains) == who])
         controller = make_controller(who[0], core.control_period_s, core.base_params, dict(who[1]))
         controller.reset(np.arange(rigs.size))
+        tell_plants(controller, np.arange(rigs.size), [core.episodes[i].params for i in rigs])
         groups.append((controller, rigs))
     channels = CHANNELS[:-1]  # every channel but the reward comes from info
     record = np.zeros((len(CHANNELS), n, int(core.max_steps.max()) + 1))

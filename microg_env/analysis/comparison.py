@@ -2,8 +2,8 @@
 
 Each case (controller, scenario, seed) is one run (:class:`~microg_env.experiments.spec.RunSpec`)
 of ``MicroGravityLanding-v1`` with the speed action, every imperfection on and, with
-``randomize``, the domain randomisation's plant drawn from the seed, so every controller meets
-the same plant, noise and drift. The scenarios are held out of training
+``randomize``, the domain randomisation's plant (and with "full" its drive) drawn from the seed,
+so every controller meets the same plant, noise and drift. The scenarios are held out of training
 (:func:`microg_env.scenarios.comparison_scenarios`) and the seeds start at :data:`TEST_SEED`,
 above every training and validation seed. The cases run through
 :func:`microg_env.experiments.runner.run_many`: as rigs of ``mujoco.batch`` batches (``workers``
@@ -22,6 +22,7 @@ import numpy as np
 from microg_env import validate
 from microg_env.analysis.evaluate import Summary, finite_mean, summarise
 from microg_env.analysis.metrics import RunMetrics, contacts
+from microg_env.analysis.paired import Paired, paired
 from microg_env.analysis.trajectory import Trajectory
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.scenarios import Scenario, comparison_scenarios
@@ -103,10 +104,13 @@ class Comparison:
     controllers: tuple[str, ...]
     scenarios: dict[str, Scenario]
     seeds: tuple[int, ...]
-    randomize: bool
+    randomize: bool | str  # False, True (the plant) or "full" (the plant and the drive)
     control_period_s: float
     duration_s: float | None
     results: list[CaseResult] = field(default_factory=list)
+    #: The controller the others are paired against (:meth:`paired`), or None.
+    reference: str | None = None
+    sensor_set: str = "extended"  # the rig's sensors (microg_env.envs.observation.SENSOR_SETS)
 
     def runs(self, controller: str, scenario: str | None = None) -> list[CaseResult]:
         return [
@@ -119,6 +123,18 @@ class Comparison:
         """Mean, std and worst (largest) of ``quantity`` over the controller's runs (those that reached it)."""
         runs = self.runs(controller, scenario)
         return summarise([r.values for r in runs], lambda values: values[quantity])
+
+    def paired(self, controller: str, quantity: str, reference: str | None = None) -> Paired:
+        """``controller`` against ``reference`` (default :attr:`reference`) on the same scenarios and
+        seeds (:mod:`microg_env.analysis.paired`, resampling and testing by seed)."""
+        reference = self.reference if reference is None else reference
+        theirs = {(r.case.scenario, r.case.seed): r.values[quantity] for r in self.runs(reference)}
+        ours = [r for r in self.runs(controller) if (r.case.scenario, r.case.seed) in theirs]
+        return paired(
+            [r.values[quantity] for r in ours],
+            [theirs[(r.case.scenario, r.case.seed)] for r in ours],
+            [r.case.seed for r in ours],
+        )
 
     def failure_rate(self, controller: str, scenario: str | None = None) -> float:
         runs = self.runs(controller, scenario)
@@ -155,6 +171,13 @@ class Comparison:
             },
             "summary": {c: summaries(c, None) for c in self.controllers},
             "per_scenario": {c: {s: summaries(c, s) for s in self.scenarios} for c in self.controllers},
+            "reference": self.reference,
+            "sensor_set": self.sensor_set,
+            "paired": {
+                c: {name: self.paired(c, name).as_dict() for name in QUANTITIES}
+                for c in self.controllers
+                if self.reference is not None and c != self.reference
+            },
             "cases": [
                 {
                     "controller": r.case.controller,
@@ -173,13 +196,17 @@ def compare(
     scenarios: Sequence[str] | None = None,
     seeds: int = 5,
     first_seed: int = TEST_SEED,
-    randomize: bool = False,
+    randomize: bool | str = False,
     control_period_s: float = CONTROL_PERIOD_S,
     duration_s: float | None = None,
     workers: int = 1,
     progress: Callable[[int], None] | None = None,
+    reference: str | None = None,
+    sensor_set: str = "extended",
 ) -> Comparison:
-    """Run every controller on every scenario and seed; ``progress(fraction)`` as episodes advance."""
+    """Run every controller on every scenario and seed; ``progress(fraction)`` as episodes advance;
+    ``reference``: one of ``controllers``, the others paired against it; ``sensor_set``: the rig's
+    sensors ("paper": no pad force, no accelerometer)."""
     from microg_env.controllers.registry import check_controller_name
 
     known = comparison_scenarios()
@@ -191,6 +218,10 @@ def compare(
         check_controller_name(controller)
     if not controllers or not names:
         raise ValueError("give at least one controller and one scenario")
+    if reference is not None and reference not in controllers:
+        raise ValueError(
+            f"reference must be one of the compared controllers {', '.join(controllers)}, got {reference!r}"
+        )
     validate.integer("seeds", seeds, 1, MAX_SEEDS)
     workers = validate.integer("workers", workers, 1, MAX_WORKERS)
     seed_list = tuple(range(first_seed, first_seed + seeds))
@@ -202,6 +233,8 @@ def compare(
         randomize,
         control_period_s,
         duration_s,
+        reference=reference,
+        sensor_set=sensor_set,
     )
     from microg_env.experiments.runner import run_many
     from microg_env.experiments.spec import RunSpec
@@ -219,6 +252,7 @@ def compare(
                 randomize=randomize,
                 control_period_us=control_period_s * 1e6,
                 duration_s=length,
+                sensor_set=sensor_set,
             )
         )
     results: list[CaseResult | None] = [None] * len(cases)

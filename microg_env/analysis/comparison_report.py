@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from microg_env.analysis.comparison import QUANTITIES, X_WINDOW_S, Comparison
+from microg_env.analysis.paired import Paired
 from microg_env.analysis.plots import figure_class, save_figure
 from microg_env.files import check_output_folder, replace_folder
 
@@ -43,15 +44,33 @@ def _summary_cell(c: Comparison, controller: str, name: str, scenario: str | Non
     )
 
 
+#: The sensor sets in words.
+SENSORS = {
+    "extended": "every sensor (grating ruler, encoder, pad force, accelerometer)",
+    "paper": "the paper's sensors (grating ruler and encoder; no pad force, no accelerometer)",
+}
+
+
+def _paired_cell(p: Paired) -> str:
+    if not p.episodes:
+        return "-"
+    return f"{p.ratio:.3g} [{p.ratio_low:.3g}, {p.ratio_high:.3g}], wins {p.wins:.0%}, p = {p.sign_p:.2g}"
+
+
 def render_markdown(c: Comparison) -> str:
     """The headline table (mean ± std (worst) over scenarios and seeds), ratios to the PID, and the
     per-scenario means."""
-    plant = "randomised plants (domain randomisation drawn from each seed)" if c.randomize else "the nominal plant"
+    plant = {
+        False: "the nominal plant",
+        True: "randomised plants (lander, pad, friction, weights drawn from each seed)",
+        "full": "randomised plants and drives (lander, pad, friction, weights, cogging, motor friction law, "
+        "speed loop, torque filter drawn from each seed)",
+    }[c.randomize]
     lines = [
         "# Controller comparison",
         "",
         f"Controllers {', '.join(c.controllers)} on the same scenarios and seeds ({c.seeds[0]}-{c.seeds[-1]}, "
-        f"{len(c.seeds)} per scenario), {plant}, every imperfection on, control period "
+        f"{len(c.seeds)} per scenario), {plant}, every imperfection on, {SENSORS[c.sensor_set]}, control period "
         f"{c.control_period_s * 1e6:g} us. Every scenario is held out of training:",
         "",
     ]
@@ -85,6 +104,19 @@ def render_markdown(c: Comparison) -> str:
                 ratio = mine / theirs if theirs else math.nan
                 ratios.append("-" if not math.isfinite(ratio) else f"{ratio:.3g}")
             lines.append(f"| {controller} | " + " | ".join(ratios) + " |")
+    if c.reference is not None and len(c.controllers) > 1:
+        lines += [
+            "",
+            f"Paired against `{c.reference}` on the same scenarios and seeds: ratio of means [95 % interval, "
+            "resampling seeds], share of episodes won, and the sign test's p over the seeds' mean differences:",
+            "",
+            "| controller | " + " | ".join(q.label for q in QUANTITIES.values()) + " |",
+            "|---|" + "---|" * len(QUANTITIES),
+        ]
+        for controller in c.controllers:
+            if controller != c.reference:
+                cells = [_paired_cell(c.paired(controller, name)) for name in QUANTITIES]
+                lines.append(f"| {controller} | " + " | ".join(cells) + " |")
     for name in ("collision_excursion_m", "compensation_error"):
         quantity = QUANTITIES[name]
         lines += [

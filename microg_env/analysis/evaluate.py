@@ -17,7 +17,7 @@ import numpy as np
 from microg_env import validate
 from microg_env.analysis.metrics import RunMetrics, compute_metrics
 from microg_env.analysis.trajectory import Trajectory, TrajectoryRecorder
-from microg_env.controllers.base import Controller
+from microg_env.controllers.base import Controller, tell_plants
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.scenarios import MAX_DURATION_S
 from microg_env.sim.reference import simulate_reference
@@ -55,6 +55,7 @@ def run_episode(
     scenario_duration = rig_env.active_scenario.duration_s
     steps = round(min(scenario_duration, duration_s or scenario_duration) / rig_env.control_period_s)
     controller.reset()
+    tell_plants(controller, np.zeros(1, dtype=np.int64), [rig_env.params])
     recorder = TrajectoryRecorder()
     recorder.append(info)
     if on_step is not None:

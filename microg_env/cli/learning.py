@@ -96,6 +96,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             check_controller_name(name)
         except ValueError as error:
             raise ValueError(f"--controllers: {error}") from None
+    if args.reference is not None and args.reference not in controllers:
+        raise ValueError(f"--reference: must be one of --controllers {','.join(controllers)}, got {args.reference!r}")
     known = comparison_scenarios()
     scenarios = args.scenarios or list(known)
     for name in scenarios:
@@ -115,8 +117,10 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             scenarios,
             seeds=args.seeds,
             first_seed=args.first_seed,
-            randomize=args.randomize,
+            randomize={None: False, "plant": True, "full": "full"}[args.randomize],
             duration_s=args.duration,
+            reference=args.reference,
+            sensor_set=args.sensors,
             workers=args.workers,
             progress=bar.update,
         )
@@ -206,7 +210,27 @@ def add_commands(commands) -> None:
         metavar="S",
         help=f"first seed (default {TEST_SEED}, above training's and validation's)",
     )
-    compare.add_argument("--randomize", action="store_true", help="randomised plants, drawn from each seed")
+    compare.add_argument(
+        "--randomize",
+        nargs="?",
+        const="plant",
+        choices=("plant", "full"),
+        help="plants drawn from each seed: the lander, pad, friction and weights (plant, the default), or these "
+        "and the drive's cogging, motor friction law, speed loop and torque filter (full)",
+    )
+    compare.add_argument(
+        "--sensors",
+        choices=("extended", "paper"),
+        default="extended",
+        help="the rig's sensors: every one (extended, the default) or the paper's (grating ruler and encoder; the "
+        "pad force and accelerometer entries read 0)",
+    )
+    compare.add_argument(
+        "--reference",
+        metavar="NAME",
+        help="pair every other controller against this one (ratio with a 95 %% interval resampling seeds, wins, "
+        "sign test)",
+    )
     add_duration_option(compare, "cap on each episode's simulated time (default: the scenario's)")
     compare.add_argument(
         "--workers",

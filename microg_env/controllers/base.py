@@ -19,7 +19,7 @@ import numpy as np
 
 from microg_env.envs.observation import OBSERVATION_INDEX
 from microg_env.envs.observation import SCALES as _SCALES
-from microg_env.params import ScrewStageParams
+from microg_env.params import RigParams, ScrewStageParams
 
 #: Drive speed that the action +-1 stands for, m/s: the paper's rig's maximum (Section 4.1), a
 #: fixed unit of the action whatever rig is simulated (a slower drive saturates on its own).
@@ -40,6 +40,14 @@ class SetpointController(Controller, Protocol):
     """A controller holding each rig's x at ``setpoint_m[rig]`` (0 for the rig's purpose, x = 0)."""
 
     setpoint_m: np.ndarray
+
+
+def tell_plants(controller: Controller, ids: np.ndarray, plants: list[RigParams]) -> None:
+    """Tell a controller that takes it (the ``oracle``: ``know_plants``) the true plants of its rigs
+    ``ids`` after their reset; every other controller is told nothing."""
+    know = getattr(controller, "know_plants", None)
+    if know is not None:
+        know(ids, plants)
 
 
 class VectorController:

@@ -62,6 +62,30 @@ class FeedforwardSettings:
         return cls(float(entry["velocity_observer_gain"]), float(entry["prediction_horizon_s"]))
 
 
+#: What the feed-forward knows of a plant, in the order of a row of :func:`plant_model`.
+PLANT_FIELDS = (
+    "mass", "gravity", "x_stiffness", "support_stiffness", "viscous", "gear", "kp_speed", "kd_speed", "inertia",
+    "cogging", "cogging_cycles", "cogging_phase", "bristle_stiffness", "bristle_damping", "coulomb", "static",
+    "stribeck_speed",
+)  # fmt: skip
+
+
+def plant_model(params: RigParams) -> np.ndarray:
+    """The feed-forward's model of the rig ``params`` (:data:`PLANT_FIELDS`, SI)."""
+    screw, servo = params.screw, params.servo
+    unit = flexible_unit(params)
+    return np.array(
+        [
+            params.lander.mass_kg, params.gravity_m_s2, unit.x_stiffness_n_per_m,
+            unit.balancer_stiffness_n_per_m if params.balancer.placement == "frame_support" else 0.0,
+            screw.viscous_n_s_per_m, screw.gear_rad_per_m, *speed_loop_gains(params), drive_inertia_kg_m2(params),
+            servo.cogging_torque_n_m, float(servo.cogging_cycles_per_rev), servo.cogging_phase_rad,
+            servo.bristle_stiffness_n_m_per_rad, servo.bristle_damping_n_m_s_per_rad, servo.coulomb_torque_n_m,
+            servo.static_torque_n_m, servo.stribeck_speed_rad_s,
+        ]
+    )  # fmt: skip
+
+
 class Feedforward(VectorController):
     """PID on x plus the nominal model's feed-forward; see the module docstring."""
 
@@ -81,21 +105,18 @@ class Feedforward(VectorController):
     ) -> None:
         self.pid = PID(load_gains("pid") if gains is None else gains, control_period_s)  # the feedback loop
         super().__init__(self.pid)
-        params = RigParams() if params is None else params
         self.settings = FeedforwardSettings.load() if settings is None else settings
         self.control_period_s = control_period_s
-        screw, servo = params.screw, params.servo
-        unit = flexible_unit(params)
-        #: The feed-forward's constants, in the order :func:`feedforward_actions` takes them.
-        self.constants = (
-            control_period_s, self.settings.velocity_observer_gain, self.settings.prediction_horizon_s,
-            params.lander.mass_kg, params.gravity_m_s2, unit.x_stiffness_n_per_m,
-            unit.balancer_stiffness_n_per_m if params.balancer.placement == "frame_support" else 0.0,
-            screw.viscous_n_s_per_m, screw.gear_rad_per_m, *speed_loop_gains(params), drive_inertia_kg_m2(params),
-            servo.cogging_torque_n_m, float(servo.cogging_cycles_per_rev), servo.bristle_stiffness_n_m_per_rad,
-            servo.bristle_damping_n_m_s_per_rad, servo.coulomb_torque_n_m, servo.static_torque_n_m,
-            servo.stribeck_speed_rad_s,
-        )  # fmt: skip
+        #: The nominal plant, and each rig's plant model (a row of the nominal one).
+        self.nominal = plant_model(RigParams() if params is None else params)
+        self._plant = self.nominal[None].copy()
+        #: The feed-forward's settings, in the order :func:`feedforward_actions` takes them.
+        self.constants = (control_period_s, self.settings.velocity_observer_gain, self.settings.prediction_horizon_s)
+
+    def grow(self, count: int) -> None:
+        if count > self.size:
+            self._plant = np.vstack([self._plant, np.tile(self.nominal, (count - self.size, 1))])
+        super().grow(count)
 
     @property
     def setpoint_m(self) -> np.ndarray:
@@ -104,23 +125,61 @@ class Feedforward(VectorController):
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         actions = np.empty(ids.size, dtype=np.float32)
         feedforward_actions(
-            rows, ids, SCALES, self._start, self._velocity, self._reference_offset, self._bristle, *self.constants,
-            actions, *self.pid.loop(),
+            rows, ids, SCALES, self._start, self._velocity, self._reference_offset, self._bristle, self._plant,
+            *self.constants, actions, *self.pid.loop(),
         )  # fmt: skip
         return actions
 
 
+class Oracle(Feedforward):
+    """The feed-forward given each episode's true plant (lander, pad, friction, drive), not the
+    nominal one: not deployable (no operator knows the plant), it bounds what knowing the plant is
+    worth. The harness tells it the plant at every reset (:meth:`know_plants`); it refuses to act
+    on a rig whose plant it was not told."""
+
+    def reset(self, ids: np.ndarray | None = None) -> None:
+        super().reset(ids)
+        self._plant[slice(None) if ids is None else np.asarray(ids, dtype=np.int64)] = math.nan
+
+    def grow(self, count: int) -> None:
+        start = self.size
+        super().grow(count)
+        self._plant[start:] = math.nan
+
+    def know_plants(self, ids: np.ndarray, plants: list[RigParams]) -> None:
+        """Rigs ``ids`` run on ``plants`` this episode."""
+        ids = np.asarray(ids, dtype=np.int64)
+        self.grow(int(ids.max(initial=-1)) + 1)
+        for i, params in zip(ids, plants, strict=True):
+            self._plant[i] = plant_model(params)
+
+    def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        unknown = ids[np.isnan(self._plant[ids, 0])]
+        if unknown.size:
+            raise RuntimeError(
+                f"oracle: rig {int(unknown[0])}'s plant was not given (know_plants after each reset); "
+                "only microg's harnesses can run the oracle"
+            )
+        return super().act(rows, ids)
+
+
 @jit
 def feedforward_actions(
-    rows, ids, scales, start, velocity, reference_offset, bristle, period, observer_gain, horizon, mass, gravity,
-    x_stiffness, support_stiffness, viscous, gear, kp_speed, kd_speed, inertia, cogging, cogging_cycles,
-    bristle_stiffness, bristle_damping, coulomb, static, stribeck_speed, out,
+    rows, ids, scales, start, velocity, reference_offset, bristle, plant, period, observer_gain, horizon, out,
     setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, pid_period, max_speed,
 ):  # fmt: skip
     """The feed-forward's actions (command / max_speed) for observations ``rows`` of rigs ``ids``,
-    into ``out``; the last arguments are its PID's (:meth:`PID.loop`)."""
+    into ``out``; ``plant``: each rig's model (rows of :func:`plant_model`); the last arguments are
+    its PID's (:meth:`PID.loop`)."""
     for j in range(ids.size):
         i = ids[j]
+        model = plant[i]
+        mass, gravity, x_stiffness, support_stiffness = model[0], model[1], model[2], model[3]
+        viscous, gear, kp_speed, kd_speed, inertia = model[4], model[5], model[6], model[7], model[8]
+        cogging, cogging_cycles, cogging_phase = model[9], model[10], model[11]
+        bristle_stiffness, bristle_damping, coulomb, static, stribeck_speed = (
+            model[12], model[13], model[14], model[15], model[16]
+        )  # fmt: skip
         x = rows[j, X] * scales[X]
         x_rate = rows[j, X_RATE] * scales[X_RATE]
         position = rows[j, SUPPORT_POSITION] * scales[SUPPORT_POSITION]
@@ -144,7 +203,7 @@ def feedforward_actions(
         load = support_stiffness * (position - start[i]) + viscous * speed
         torque = inertia * gear * accel + load / gear
         angle = gear * (position + support_velocity * horizon)
-        torque -= cogging * np.sin(cogging_cycles * angle)
+        torque -= cogging * np.sin(cogging_cycles * angle + cogging_phase)
         if bristle_stiffness > 0:  # LuGre friction of the commanded motion
             omega = gear * speed
             ratio = omega / stribeck_speed

@@ -24,7 +24,7 @@ from microg_env.controllers.base import MAX_SPEED_M_S
 from microg_env.controllers.policy import RESIDUAL_LIMIT_M
 from microg_env.controllers.registry import BASELINES, make_controller
 from microg_env.envs import period
-from microg_env.envs.observation import SCALES
+from microg_env.envs.observation import OBSERVATION_INDEX, SCALES, SENSOR_SETS
 from microg_env.imperfections import DomainRandomization, Imperfections, apply_imperfections
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, MAX_CONTROL_STEPS, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import LoadStep, Scenario, ScenarioSampler
@@ -105,6 +105,7 @@ class LandingCore:
         residual_limit_m: float = RESIDUAL_LIMIT_M,
         imperfections: Imperfections | Mapping | None = None,
         domain_randomization: DomainRandomization | Mapping | bool | None = None,
+        sensor_set: str = "extended",
         params: RigParams | None = None,
         xml_file: str | None = None,
         reward_scale_m: float = 1e-8,
@@ -133,6 +134,8 @@ class LandingCore:
         self.scenarios = scenarios if scenarios is not None else (self.scenario,) * num_rigs
         self.imperfections = _imperfections(imperfections)
         self.domain_randomization = _randomization(domain_randomization)
+        self.sensor_set = validate.choice("sensor_set", sensor_set, tuple(SENSOR_SETS))
+        self._missing = np.array([OBSERVATION_INDEX[name] for name in SENSOR_SETS[sensor_set]], dtype=np.int64)
         self.base_params = RigParams() if params is None else params
         validate.instance("params", self.base_params, RigParams)
         self.physics_step_s = check_physics_step(physics_step_s)
@@ -414,6 +417,8 @@ class LandingCore:
             )  # fmt: skip
             if result >= 0:
                 noise.exhausted |= result == 1
+                if self._missing.size:  # sensors the rig's set lacks read 0
+                    self.observation[np.ix_(ids, self._missing)] = 0.0
                 return codes
             due = ~np.isnan(height)
             self._place_due_loads(ids[due], height[due])

@@ -110,6 +110,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``residual_limit_m`` | 1e-6 | the setpoint an action of +-1 stands for, m |
     | ``imperfections`` | ``Imperfections()`` | which non-ideal effects are on (or their flags as a dict) |
     | ``domain_randomization`` | None | a ``DomainRandomization`` (``True``: its defaults; or its fields as a dict) |
+    | ``sensor_set`` | ``"extended"`` | ``"paper"``: ruler and encoder only (pad force and accelerometer read 0) |
     | ``params`` | ``RigParams()`` | the rig (the scenario's explicit overrides are applied on top) |
     | ``xml_file`` | None | an MJCF template other than the packaged ``scene.xml`` |
     | ``reward_scale_m`` | 1e-8 | x0 of the reward, m |
@@ -155,6 +156,7 @@ class MicroGravityLandingEnv(gym.Env):
         residual_limit_m: float = RESIDUAL_LIMIT_M,
         imperfections: Imperfections | Mapping | None = None,
         domain_randomization: DomainRandomization | Mapping | bool | None = None,
+        sensor_set: str = "extended",
         params: RigParams | None = None,
         xml_file: str | None = None,
         reward_scale_m: float = 1e-8,
@@ -190,6 +192,7 @@ class MicroGravityLandingEnv(gym.Env):
             residual_limit_m=residual_limit_m,
             imperfections=imperfections,
             domain_randomization=domain_randomization,
+            sensor_set=sensor_set,
             params=params,
             xml_file=xml_file,
             reward_scale_m=reward_scale_m,
@@ -302,6 +305,7 @@ SETTINGS = (
     "scenario_sampler",
     "imperfections",
     "domain_randomization",
+    "sensor_set",
     "base_params",
     "physics_step_s",
     "control_period_s",

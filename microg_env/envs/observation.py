@@ -26,4 +26,8 @@ OBSERVATION_SCALES: dict[str, float] = {
     "base_command": ScrewStageParams().max_speed_m_per_s,
 }
 OBSERVATION_INDEX = {name: i for i, name in enumerate(OBSERVATION_SCALES)}
+#: The rig's sensor sets, by the observation entries each lacks (they read 0). ``extended``: every
+#: sensor above; ``paper``: the paper's rig, which closes its loops on the grating ruler and the
+#: servo encoder only (Section 4.1), with no pad force sensor and no accelerometer.
+SENSOR_SETS: dict[str, tuple[str, ...]] = {"extended": (), "paper": ("lander_accel", "pad_force")}
 SCALES = np.array(list(OBSERVATION_SCALES.values()))

@@ -22,13 +22,20 @@ from microg_env import validate
 from microg_env.controllers.pid import PIDGains
 from microg_env.controllers.registry import BASELINES, check_controller_name
 from microg_env.envs.core import check_control_period
-from microg_env.imperfections import IMPERFECTION_NAMES, Imperfections
+from microg_env.envs.observation import SENSOR_SETS
+from microg_env.imperfections import IMPERFECTION_NAMES, DomainRandomization, Imperfections
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides
 from microg_env.scenarios import LoadStep, Scenario, comparison_scenarios
 from microg_env.sim.model import check_physics_step
 
 #: The controller that :mod:`microg_env.experiments.tuning` re-tunes on each spec's rig and period.
 RETUNED_PID = "pid-retuned"
+#: What ``RunSpec.randomize`` draws: nothing, the plant (lander, pad, friction, weights), or the
+#: plant and the drive.
+RANDOMIZE = {False: None, True: DomainRandomization(), "full": DomainRandomization.full()}
+#: Fields added after campaigns were first stored, with their defaults (left out of :meth:`RunSpec.as_dict`
+#: at the default, so the content hash of every spec written before them is unchanged).
+ADDED_FIELDS = {"sensor_set": "extended"}
 #: Characters of the SHA-256 content hash kept (64 bits: no collision in any campaign's lifetime).
 HASH_CHARS = 16
 #: The fields runs of one batch may differ in (the vector environment steps them together).
@@ -49,23 +56,26 @@ class RunSpec:
     overrides: Mapping[str, Any] = field(default_factory=dict)
     gains: Mapping[str, float] = field(default_factory=dict)
     imperfections: Mapping[str, bool] = field(default_factory=dict)
-    randomize: bool = False
+    randomize: bool | str = False  # True: DomainRandomization(); "full": DomainRandomization.full()
     control_period_us: float = CONTROL_PERIOD_S * 1e6
     physics_step_us: float = PHYSICS_STEP_S * 1e6
     duration_s: float | None = None
     loads: tuple[tuple[float, float | None], ...] | None = None
     descent_height_m: float | None = None
+    sensor_set: str = "extended"  # or "paper": no pad force sensor, no accelerometer
 
     def __post_init__(self) -> None:
         known = comparison_scenarios()
         if self.scenario not in known:
             raise ValueError(f"RunSpec.scenario must be one of {', '.join(known)}, got {self.scenario!r}")
         validate.instance("RunSpec.controller", self.controller, str)
+        validate.choice("RunSpec.sensor_set", self.sensor_set, tuple(SENSOR_SETS))
         if self.controller != RETUNED_PID:
             check_controller_name(self.controller)
         set_ = object.__setattr__
         set_(self, "seed", validate.integer("RunSpec.seed", self.seed, 0, 2**32 - 1))
-        validate.instance("RunSpec.randomize", self.randomize, bool)
+        if not isinstance(self.randomize, bool | str) or self.randomize not in RANDOMIZE:
+            raise ValueError(f"RunSpec.randomize must be one of False, True, 'full', got {self.randomize!r}")
         set_(self, "overrides", _overrides(self.overrides))
         set_(self, "gains", _named_floats("RunSpec.gains", self.gains, [f.name for f in fields(PIDGains)]))
         if self.gains and self.controller not in (*BASELINES, RETUNED_PID):
@@ -87,6 +97,9 @@ class RunSpec:
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready and complete: ``RunSpec.from_dict(spec.as_dict()) == spec``."""
         out = {f.name: getattr(self, f.name) for f in fields(self)}
+        for name in ADDED_FIELDS:  # at its default, a field added later leaves older hashes as they were
+            if out[name] == ADDED_FIELDS[name]:
+                del out[name]
         out["loads"] = None if self.loads is None else [list(load) for load in self.loads]
         return (
             out
@@ -162,7 +175,8 @@ class RunSpec:
             "control_period_s": self.control_period_s,
             "physics_step_s": self.physics_step_s,
             "imperfections": self.imperfection_flags(),
-            "domain_randomization": self.randomize or None,
+            "domain_randomization": RANDOMIZE[self.randomize],
+            "sensor_set": self.sensor_set,
             "params": self.rig_params(),
         }
 

@@ -51,7 +51,9 @@ def result_row(result: RunResult, columns: Mapping[str, Any]) -> dict[str, Any]:
         "scenario": spec.scenario,
         "controller": spec.controller,
         "seed": spec.seed,
-        "randomize": spec.randomize,
+        "randomize": spec.randomize is not False,  # the plant drawn from the seed
+        "randomize_drive": spec.randomize == "full",  # and the drive
+        "sensor_set": spec.sensor_set,
         "control_period_us": spec.control_period_us,
         "physics_step_us": spec.physics_step_us,
         "duration_s": spec.duration_s,

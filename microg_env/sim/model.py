@@ -50,6 +50,22 @@ def slew_rate(speed_ref_rad_s: float) -> float:
     return max(abs(speed_ref_rad_s), MIN_SLEW_RAD_S)
 
 
+#: Where MuJoCo's ``dcmotor`` keeps the parameters an episode may change: (field, index) of
+#: ``actuator_gainprm`` (kp, kd of the on-board controller), ``actuator_biasprm`` (cogging amplitude
+#: and phase, the torque being A sin(N theta + phase); LuGre Coulomb, static torque and Stribeck
+#: speed) and ``actuator_dynprm`` (current time constant; LuGre bristle stiffness and damping).
+DCMOTOR_FIELDS = {
+    "kp": 4,
+    "kd": 6,
+    "cogging": 0,
+    "cogging_phase": 2,
+    "coulomb": 3,
+    "static": 4,
+    "stribeck": 5,
+    "torque_filter": 0,
+    "bristle_stiffness": 5,
+    "bristle_damping": 6,
+}
 #: Parameters that :meth:`Rig.episode_fields` can change without recompiling the model.
 EPISODE_PARAMETERS = frozenset(
     {
@@ -61,6 +77,13 @@ EPISODE_PARAMETERS = frozenset(
         "qzs.guide_damping_n_s_per_m",
         "servo.coulomb_torque_n_m",
         "servo.static_torque_n_m",
+        "servo.stribeck_speed_rad_s",
+        "servo.bristle_stiffness_n_m_per_rad",
+        "servo.bristle_damping_n_m_s_per_rad",
+        "servo.cogging_torque_n_m",
+        "servo.cogging_phase_rad",
+        "servo.speed_loop_gain_hz",
+        "servo.torque_filter_s",
     }
 )
 
@@ -249,10 +272,25 @@ class Rig:
             ("tendon_lengthspring", self._balancer, np.array([trim_length, trim_length])),
             ("dof_damping", self.qzs_dof, params.qzs.guide_damping_n_s_per_m),
         ]
-        # dcmotor bias parameters 3 and 4 are the LuGre Coulomb and static friction.
+        servo, motor = params.servo, self.servo
+        if not self.ideal_drive:  # the dcmotor's parameters (DCMOTOR_FIELDS)
+            kp, kd = speed_loop_gains(params)
+            writes += [
+                ("actuator_gainprm", (motor, DCMOTOR_FIELDS["kp"]), kp),
+                ("actuator_gainprm", (motor, DCMOTOR_FIELDS["kd"]), kd),
+                ("actuator_biasprm", (motor, DCMOTOR_FIELDS["cogging"]), servo.cogging_torque_n_m),
+                ("actuator_biasprm", (motor, DCMOTOR_FIELDS["cogging_phase"]), servo.cogging_phase_rad),
+            ]
+            if self.current_act is not None:
+                writes.append(("actuator_dynprm", (motor, DCMOTOR_FIELDS["torque_filter"]), servo.torque_filter_s))
         if self._motor_lugre:
-            writes.append(("actuator_biasprm", (self.servo, 3), params.servo.coulomb_torque_n_m))
-            writes.append(("actuator_biasprm", (self.servo, 4), params.servo.static_torque_n_m))
+            writes += [
+                ("actuator_biasprm", (motor, DCMOTOR_FIELDS["coulomb"]), servo.coulomb_torque_n_m),
+                ("actuator_biasprm", (motor, DCMOTOR_FIELDS["static"]), servo.static_torque_n_m),
+                ("actuator_biasprm", (motor, DCMOTOR_FIELDS["stribeck"]), servo.stribeck_speed_rad_s),
+                ("actuator_dynprm", (motor, DCMOTOR_FIELDS["bristle_stiffness"]), servo.bristle_stiffness_n_m_per_rad),
+                ("actuator_dynprm", (motor, DCMOTOR_FIELDS["bristle_damping"]), servo.bristle_damping_n_m_s_per_rad),
+            ]
         if self._guide_lugre:
             writes.append(("actuator_biasprm", (self._guide, 3), params.qzs.guide_friction_n))
             writes.append(("actuator_biasprm", (self._guide, 4), params.qzs.guide_static_friction_n))
@@ -262,6 +300,8 @@ class Rig:
         """Raise ValueError if ``params`` differs from the built rig's beyond :data:`EPISODE_PARAMETERS`."""
         built, given = parameter_paths(self.params), parameter_paths(params)
         changed = sorted(path for path in built if built[path] != given[path] and path not in EPISODE_PARAMETERS)
+        if (self.params.servo.torque_filter_s == 0) != (params.servo.torque_filter_s == 0):
+            changed.append("servo.torque_filter_s (to or from 0, which adds or removes the current state)")
         if changed:
             raise ValueError(f"parameters {', '.join(changed)} differ from the built rig's: build a new rig")
 
@@ -485,7 +525,7 @@ def _apply_servo(spec: mujoco.MjSpec, params: RigParams, ideal_drive: bool) -> N
         resistance=servo.resistance_ohm,
         inductance=(0.0, servo.torque_filter_s),
         saturation=(servo.peak_torque_n_m if math.isfinite(servo.peak_torque_n_m) else 0.0, 0.0, 0.0),
-        cogging=(servo.cogging_torque_n_m, float(servo.cogging_cycles_per_rev), 0.0),
+        cogging=(servo.cogging_torque_n_m, float(servo.cogging_cycles_per_rev), servo.cogging_phase_rad),
         # The slew limiter interpolates the position reference (Rig.drive sets its rate).
         controller=(kp, 0.0, kd, servo_max_speed_rad_s(params), 0.0, servo.bus_voltage_v),
         lugre=(
