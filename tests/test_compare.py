@@ -126,6 +126,24 @@ def test_cli_compare_refuses_a_reference_it_does_not_run(capsys):
     assert "--reference: must be one of --controllers pid, got 'feedforward'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("option", "value"), [("--scenarios", "condition-1,condition-1"), ("--controllers", "pid, feedforward,pid")]
+)
+def test_cli_compare_refuses_a_repeated_item(capsys, option, value):
+    """A repeated scenario used to run each seed twice and count it double in every mean."""
+    assert main(["compare", option, value, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "is given twice" in err
+    assert "Traceback" not in err
+
+
+def test_compare_refuses_a_repeated_scenario_or_controller():
+    with pytest.raises(ValueError, match="scenario 'condition-1' is given twice"):
+        compare(["pid"], ["condition-1", "condition-2", "condition-1"])
+    with pytest.raises(ValueError, match="controller 'pid' is given twice"):
+        compare(["pid", "pid"], ["condition-1"])
+
+
 # The shipped policy: how it was made, and that it does what the README says on held-out cases.
 
 

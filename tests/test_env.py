@@ -461,6 +461,18 @@ def test_the_papers_sensor_set_hides_the_pad_force_and_accelerometer_and_nothing
         MicroGravityLandingEnv(sensor_set="ruler")
 
 
+@pytest.mark.parametrize(("decision_period", "fps"), [(1, 1000), (5, 200)])
+def test_dt_and_render_fps_are_one_step_of_simulated_time(decision_period, fps):
+    """A step holds the action ``decision_period`` control periods: ``dt`` is that time (as
+    Gymnasium's MuJoCo envs define it) and frames rendered once a step play in real time."""
+    env = MicroGravityLandingEnv(condition=1, action_mode="residual", decision_period=decision_period)
+    _, info = env.reset(seed=0)
+    _, _, _, _, after = env.step(np.zeros(1, dtype=np.float32))
+    assert after["time_s"] - info["time_s"] == pytest.approx(env.dt)
+    assert env.dt == pytest.approx(decision_period * 1e-3)
+    assert env.metadata["render_fps"] == fps
+
+
 def test_impossible_randomisation_is_rejected_at_construction():
     """A 99 % lander-mass range could draw a 6 kg lander under 0.5 kg of weights: reset used to fail
     on some seeds and leave the environment half-updated."""

@@ -218,6 +218,10 @@ def compare(
         check_controller_name(controller)
     if not controllers or not names:
         raise ValueError("give at least one controller and one scenario")
+    for kind, given in (("controller", tuple(controllers)), ("scenario", names)):
+        repeated = next((item for i, item in enumerate(given) if item in given[:i]), None)
+        if repeated is not None:  # its runs would count twice in every mean and test
+            raise ValueError(f"{kind} {repeated!r} is given twice")
     if reference is not None and reference not in controllers:
         raise ValueError(
             f"reference must be one of the compared controllers {', '.join(controllers)}, got {reference!r}"
@@ -225,9 +229,9 @@ def compare(
     validate.integer("seeds", seeds, 1, MAX_SEEDS)
     workers = validate.integer("workers", workers, 1, MAX_WORKERS)
     seed_list = tuple(range(first_seed, first_seed + seeds))
-    cases = [Case(c, s, seed) for s in names for seed in seed_list for c in dict.fromkeys(controllers)]
+    cases = [Case(c, s, seed) for s in names for seed in seed_list for c in controllers]
     comparison = Comparison(
-        tuple(dict.fromkeys(controllers)),
+        tuple(controllers),
         {s: known[s] for s in names},
         seed_list,
         randomize,

@@ -104,10 +104,14 @@ def count(high: float = 1e12) -> Callable[[str], int]:
 
 
 def comma_list(text: str) -> list[str]:
-    """A comma-separated list (spaces around the commas allowed), with no empty items."""
+    """A comma-separated list (spaces around the commas allowed), with no empty or repeated items
+    (a repeat would count its runs twice in every mean)."""
     items = [item.strip() for item in text.split(",")]
     if not all(items):
         raise argparse.ArgumentTypeError(f"empty item in {text!r}")
+    repeated = next((item for i, item in enumerate(items) if item in items[:i]), None)
+    if repeated is not None:
+        raise argparse.ArgumentTypeError(f"{repeated!r} is given twice in {text!r}")
     return items
 
 

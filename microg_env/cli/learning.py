@@ -110,7 +110,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         from tqdm import tqdm
     except ImportError:
         raise ValueError("microg compare needs the report extra: pip install 'microg-env[report]'") from None
-    total = len(dict.fromkeys(controllers)) * len(scenarios) * args.seeds
+    total = len(controllers) * len(scenarios) * args.seeds
     with tqdm(total=total, unit="episode", desc="compare", file=ProgressStream(sys.stderr), disable=args.quiet) as bar:
         result = comparison.compare(
             controllers,

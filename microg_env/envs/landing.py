@@ -202,8 +202,10 @@ class MicroGravityLandingEnv(gym.Env):
         for name in SETTINGS:
             setattr(self, name, getattr(core, name))
         self.rig = core.rig
-        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.control_period_s)}
-        self._human_every = max(1, round(1.0 / (60.0 * self.control_period_s)))
+        #: Simulated seconds one ``step`` advances: the control period times the decision period.
+        self.dt = self.control_period_s * self.decision_period
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dt)}  # frames play in real time
+        self._human_every = max(1, round(1.0 / (60.0 * self.dt)))
         self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(len(SCALES),), dtype=np.float32)
         model = self.model
