@@ -202,6 +202,7 @@ def test_a_batch_of_episodes_is_the_single_env_episode_of_each():
     records each case exactly as the single-env harness does."""
     cases = [("pid", condition(2), 1000), ("feedforward", condition(3), 1001), ("residual-ppo", condition(1), 1002)]
     cases += [("oracle", condition(1), 1003), ("oracle", condition(2), 1004)]  # told each rig's own plant
+    cases += [("adaptive", condition(1), 1005), ("adaptive", condition(3), 1006)]  # each rig its own estimate
     cases = [(name, replace(scenario, duration_s=0.6), seed) for name, scenario, seed in cases]
     drawn = DomainRandomization.full()
     runs = run_batch([EpisodeSpec(*case) for case in cases], {"domain_randomization": drawn})

@@ -29,13 +29,13 @@ the observer gain were chosen by the same cost as the PID's on conditions 1-3: a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import ClassVar
 
 import numpy as np
 
 from microg_env.compiled import jit
-from microg_env.controllers.base import VectorController
+from microg_env.controllers.base import MAX_SPEED_M_S, VectorController
 from microg_env.controllers.pid import PID, X_RATE, PIDGains, X, controller_config, load_gains, pid_command
 from microg_env.envs.observation import OBSERVATION_INDEX, SCALES
 from microg_env.params import RigParams
@@ -219,3 +219,111 @@ def feedforward_actions(
         offset = (torque - kp_speed * accumulated) / (kd_speed + kp_speed * period)
         reference_offset[i] = accumulated + offset * period
         out[j] = (speed + offset / gear) / max_speed
+
+
+@dataclass(frozen=True)
+class AdaptiveSettings:
+    """The adaptive feed-forward's own settings (config/controllers.toml, ``[adaptive]``)."""
+
+    cogging_gain: float  # normalised LMS step of the cogging estimate, per control period
+    min_cogging_hz: float  # the estimate learns only while the cogging passes faster than this
+    high_pass_hz: float  # corner of the high-pass that takes the speed loop's slow lag out of eps
+
+    @classmethod
+    def load(cls) -> AdaptiveSettings:
+        entry = controller_config("adaptive")
+        return cls(*(float(entry[f.name]) for f in fields(cls)))
+
+
+class AdaptiveFeedforward(Feedforward):
+    """The feed-forward that learns the motor's cogging while it runs, from the encoder only: a
+    deployable adaptive baseline (adaptive feed-forward cancellation, a filtered-x LMS).
+
+    The cogging torque A sin(N theta + phase) = a sin(N theta) + b cos(N theta) that the
+    feed-forward cancels has its coefficients (a, b) estimated per rig, starting from the nominal
+    motor's. What the cancellation leaves moves the support off the drive's position reference
+    (the integral of the commands sent, one period late): eps = theta_ref - theta responds to a
+    residual torque r(theta) through the speed loop, eps = -H(j w) r at the cogging's frequency
+    w = N dtheta/dt, with H = 1 / (-J w^2 + (kp + j w kd) / (1 + j w tau)) from the nominal drive
+    (inertia J, PI gains, torque filter tau). Each period, while the cogging passes faster than
+    ``min_cogging_hz``, (a, b) move against the gradient of eps^2: by -mu eps [sin, cos](N theta +
+    arg H) / |H|. Everything else is the nominal feed-forward's.
+    """
+
+    STATE: ClassVar[dict[str, float]] = {
+        **Feedforward.STATE,
+        "_reference": math.nan,  # the drive's position reference as the commands sent imply, less
+        # the offsets that ask it for the feed-forward's torque, m
+        "_pending": 0.0,  # that part of the command sent last period, which the drive takes this period, m/s
+        "_slow": 0.0,  # eps low-passed at high_pass_hz (eps minus it is the part the cogging moves), rad
+    }
+
+    def __init__(self, control_period_s: float, params: RigParams | None = None, gains: PIDGains | None = None) -> None:
+        super().__init__(control_period_s, params, gains=gains)
+        params = RigParams() if params is None else params
+        self.adaptive = AdaptiveSettings.load()
+        #: The adaptation's constants, in the order :func:`adapt_cogging` takes them.
+        corner = 2 * math.pi * self.adaptive.high_pass_hz
+        self.adaptive_constants = (
+            self.adaptive.cogging_gain, 2 * math.pi * self.adaptive.min_cogging_hz, corner,
+            1.0 - math.exp(-corner * control_period_s), params.servo.torque_filter_s,
+        )  # fmt: skip
+
+    def reset(self, ids: np.ndarray | None = None) -> None:
+        super().reset(ids)
+        self._plant[slice(None) if ids is None else np.asarray(ids, dtype=np.int64)] = (
+            self.nominal
+        )  # forget the estimate
+
+    def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        adapt_cogging(
+            rows, ids, SCALES, self._plant, self._reference, self._pending, self._slow, *self.adaptive_constants
+        )  # fmt: skip
+        before = self._reference_offset[ids]
+        actions = super().act(rows, ids)
+        offsets = (self._reference_offset[ids] - before) / self.nominal[PLANT_FIELDS.index("gear")]  # m
+        advance_reference(ids, actions, offsets, MAX_SPEED_M_S, self.control_period_s, self._reference, self._pending)
+        return actions
+
+
+@jit
+def adapt_cogging(rows, ids, scales, plant, reference, pending, slow, gain, min_rate, corner, smoothing, torque_filter):
+    """One step of the cogging estimate of rigs ``ids`` (rows 9 and 11 of ``plant``: amplitude and
+    phase), from the encoder's position against the drive's reference; see :class:`AdaptiveFeedforward`."""
+    for j in range(ids.size):
+        i = ids[j]
+        position = rows[j, SUPPORT_POSITION] * scales[SUPPORT_POSITION]
+        if np.isnan(reference[i]):  # the first period: the drive's reference is where the support is
+            reference[i] = position
+            pending[i] = 0.0
+            slow[i] = 0.0
+            continue
+        model = plant[i]
+        gear, kp, kd, inertia, cycles = model[5], model[6], model[7], model[8], model[10]
+        lag = gear * (reference[i] - position)  # motor rad
+        slow[i] += smoothing * (lag - slow[i])
+        error = lag - slow[i]
+        rate = cycles * gear * rows[j, SUPPORT_VELOCITY] * scales[SUPPORT_VELOCITY]  # the cogging's, rad/s
+        if abs(rate) < min_rate:
+            continue
+        w = abs(rate)
+        response = 1.0 / (-inertia * w * w + (kp + 1j * w * kd) / (1.0 + 1j * w * torque_filter))
+        response *= 1j * w / (1j * w + corner)  # the high-pass
+        angle = cycles * gear * position + np.angle(response) * np.sign(rate)
+        step = -gain * error / abs(response)
+        a = model[9] * np.cos(model[11]) + step * np.sin(angle)
+        b = model[9] * np.sin(model[11]) + step * np.cos(angle)
+        model[9] = np.hypot(a, b)
+        model[11] = np.arctan2(b, a)
+
+
+@jit
+def advance_reference(ids, actions, offsets, max_speed, period, reference, pending):
+    """The drive's reference at the next period, less the feed-forward's torque offsets (``offsets``,
+    m, this period's): this period it ramps at the command sent last period (the control delay);
+    this period's command waits one period."""
+    for j in range(ids.size):
+        i = ids[j]
+        command = min(max(float(actions[j]), -1.0), 1.0) * max_speed
+        reference[i] += pending[i] * period
+        pending[i] = command - offsets[j] / period

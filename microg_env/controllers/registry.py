@@ -11,7 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from microg_env.controllers.base import Controller
-from microg_env.controllers.feedforward import Feedforward, Oracle
+from microg_env.controllers.feedforward import AdaptiveFeedforward, Feedforward, Oracle
 from microg_env.controllers.pid import PID, load_gains
 from microg_env.controllers.policy import (
     CARD_FILE,
@@ -23,9 +23,12 @@ from microg_env.controllers.policy import (
 from microg_env.params import RigParams
 
 #: The classical baselines: the paper's PID, its derivative-on-measurement variant, the PID with
-#: the nominal model's feed-forward, and the bound: the feed-forward told the episode's true plant
-#: (``oracle``, not deployable).
-BASELINES = ("pid", "pid-dom", "feedforward", "oracle")
+#: the nominal model's feed-forward, that feed-forward learning the motor's cogging as it runs
+#: (``adaptive``), and the bound: the feed-forward told the episode's true plant (``oracle``, not
+#: deployable).
+BASELINES = ("pid", "pid-dom", "feedforward", "adaptive", "oracle")
+#: The baselines built on the feed-forward (their feedback loop is ``pid``'s).
+FEEDFORWARDS = {"feedforward": Feedforward, "adaptive": AdaptiveFeedforward, "oracle": Oracle}
 #: Every controller selectable by name: the baselines and the shipped policies.
 CONTROLLER_NAMES = BASELINES + shipped_policies()
 
@@ -59,9 +62,9 @@ def make_controller(
     if gains and name not in BASELINES:
         raise ValueError(f"gains {dict(gains)!r}: controller {name!r} has no PID gains to replace")
     if name in BASELINES:
-        tuned = replace(load_gains("pid" if name in ("feedforward", "oracle") else name), **(gains or {}))
-        if name in ("feedforward", "oracle"):
-            return (Feedforward if name == "feedforward" else Oracle)(control_period_s, params, gains=tuned)
+        tuned = replace(load_gains("pid" if name in FEEDFORWARDS else name), **(gains or {}))
+        if name in FEEDFORWARDS:
+            return FEEDFORWARDS[name](control_period_s, params, gains=tuned)
         return PID(tuned, control_period_s, derivative_on_measurement=name == "pid-dom")
     folder = Path(name) if is_policy_folder(name) else shipped_policy_folder(name)
     return load_policy(folder, control_period_s)
