@@ -120,6 +120,11 @@ def test_cli_compare_pairs_against_the_reference_on_randomised_drives(capsys):
     assert "Paired against `feedforward`" in capsys.readouterr().out
 
 
+def test_cli_compare_names_first_seed_when_the_last_seed_is_out_of_range(capsys):
+    assert main(["compare", "--controllers", "pid", "--first-seed", "4294967295", "--seeds", "2", "--quiet"]) == 2
+    assert "--first-seed: 4294967295 with --seeds 2 runs seed 4294967296" in capsys.readouterr().err
+
+
 def test_cli_compare_refuses_a_reference_it_does_not_run(capsys):
     code = main(["compare", "--controllers", "pid", "--reference", "feedforward", "--quiet"])
     assert code == 2

@@ -204,3 +204,9 @@ def test_the_adaptive_feedforward_learns_a_cogging_it_was_not_told():
             assert ours.flexible_unit_excursion_collision_m <= theirs.flexible_unit_excursion_collision_m * 1.05
     adaptive.reset()
     np.testing.assert_array_equal(adaptive._plant[0], adaptive.nominal)  # a new episode starts from the nominal motor
+
+
+@pytest.mark.parametrize("period", [0.0, -1e-3, float("nan"), 1.0])
+def test_a_controller_refuses_a_control_period_the_rig_cannot_run(period):
+    with pytest.raises(ValueError, match="control_period_s"):
+        make_controller("pid", period)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -17,6 +18,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from microg_env.analysis.metrics import RunMetrics
+from microg_env.controllers.policy import shipped_policy_folder
 from microg_env.experiments.campaign import Campaign
 from microg_env.experiments.runner import run, run_all, run_each
 from microg_env.experiments.spec import RunSpec
@@ -469,3 +471,28 @@ def test_run_each_on_two_processes_gives_the_runs_of_run_in_order():
         assert repr(result.metrics) == repr(alone.metrics)
         assert np.array_equal(result.trajectory.x_m, alone.trajectory.x_m)
         assert np.array_equal(result.reference.foot_height_m, alone.reference.foot_height_m)
+
+
+def test_a_controller_giving_nan_fails_only_its_own_runs(tmp_path):
+    """A policy whose output is NaN used to send the NaN to MuJoCo and fail every run of its batch,
+    the PID's included: now only its own rigs stop, with an error naming it, and the PID's runs are
+    those it runs alone."""
+    folder = tmp_path / "nan-policy"
+    shutil.copytree(shipped_policy_folder("residual-ppo"), folder)
+    arrays = dict(np.load(folder / "policy.npz"))
+    arrays["bias_2"] = np.full_like(arrays["bias_2"], np.nan)
+    np.savez(folder / "policy.npz", **arrays)
+    specs = [
+        RunSpec("condition-2", name, seed=seed, duration_s=0.3) for name in ("pid", str(folder)) for seed in (0, 1)
+    ]
+    results = run_all(specs)
+    assert [r.ok for r in results] == [True, True, False, False]
+    for result in results[2:]:
+        assert f"controller {str(folder)!r} gave a non-finite action (nan) at t = 0.000 s" in result.error
+    alone = run_all(specs[:1])[0]
+    assert alone.metrics.as_dict() == results[0].metrics.as_dict()
+
+
+def test_run_all_refuses_what_is_not_a_run_spec():
+    with pytest.raises(ValueError, match="run spec must be a RunSpec, got str"):
+        run_all(["x"])

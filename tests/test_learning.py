@@ -427,3 +427,15 @@ def test_rl_zoo3_trains_from_the_same_hyperparameter_file(tmp_path):
     config = (run / ENV_ID / "config.yml").read_text()
     assert "feedforward" in config
     assert "residual" in config
+
+
+def test_the_cli_progress_bar_names_the_default_algorithm(tmp_path, capsys):
+    """Without --algo the bar used to read 'train None'."""
+    from microg_env.cli import main
+
+    args = ["train", "--timesteps", "128", "--hyperparams", str(_tiny_hyperparams(tmp_path, "ppo"))]
+    args += ["--log-folder", str(tmp_path / "logs"), "--eval-freq", "128", "--eval-episodes", "1"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "train ppo" in err
+    assert "train None" not in err

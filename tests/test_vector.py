@@ -206,7 +206,8 @@ def test_a_batch_of_episodes_is_the_single_env_episode_of_each():
     cases = [(name, replace(scenario, duration_s=0.6), seed) for name, scenario, seed in cases]
     drawn = DomainRandomization.full()
     runs = run_batch([EpisodeSpec(*case) for case in cases], {"domain_randomization": drawn})
-    for (name, scenario, seed), (trajectory, params) in zip(cases, runs, strict=True):
+    for (name, scenario, seed), (trajectory, params, error) in zip(cases, runs, strict=True):
+        assert error is None
         env = MicroGravityLandingEnv(scenario=scenario, domain_randomization=drawn)
         single = run_episode(env, make_controller(name, 1e-3), seed=seed)
         assert params == env.params

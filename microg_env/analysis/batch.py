@@ -45,11 +45,13 @@ def run_batches(
     settings: Mapping[str, Any] | None = None,
     nthread: int = 0,
     progress: Callable[[float], None] | None = None,
-) -> Iterator[list[tuple[int, Trajectory, RigParams]]]:
+) -> Iterator[list[tuple[int, Trajectory, RigParams, str | None]]]:
     """Run ``episodes`` on the rig of ``settings`` (``MicroGravityLandingEnv``'s keyword arguments
     but the scenario: control period, physics step, imperfections, domain randomisation, params);
     with a domain randomisation each rig's plant is drawn from its seed. Yield each batch's runs as
-    it ends: (index in ``episodes``, trajectory, the rig it ran on). A batch holds one schedule's
+    it ends: (index in ``episodes``, trajectory, the rig it ran on, error). A controller that raises
+    or gives a non-finite action stops only its own rigs, there, with the error naming it (else
+    None); the others run on. A batch holds one schedule's
     episodes (the single env's compiled model), at most :data:`MAX_BATCH` of them, stepped on
     ``nthread`` threads (0: every core); ``progress(episodes)`` reports finished fractions of
     episodes. A model-based controller assumes the nominal rig of ``settings``."""
@@ -62,19 +64,19 @@ def run_batches(
         for bounds in np.array_split(np.array(members), chunks):
             chunk = [episodes[i] for i in bounds]
             runs = _run_chunk(chunk, settings, nthread, progress)
-            yield [(int(i), trajectory, params) for i, (trajectory, params) in zip(bounds, runs, strict=True)]
+            yield [(int(i), *run) for i, run in zip(bounds, runs, strict=True)]
 
 
-def run_batch(episodes: Sequence[EpisodeSpec], *args, **kwargs) -> list[tuple[Trajectory, RigParams]]:
+def run_batch(episodes: Sequence[EpisodeSpec], *args, **kwargs) -> list[tuple[Trajectory, RigParams, str | None]]:
     """Every run of :func:`run_batches` (same arguments), in the order of ``episodes``."""
     runs: list = [None] * len(episodes)
     for batch in run_batches(episodes, *args, **kwargs):
-        for i, trajectory, params in batch:
-            runs[i] = (trajectory, params)
+        for i, *run in batch:
+            runs[i] = tuple(run)
     return runs
 
 
-def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, RigParams]]:
+def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, RigParams, str | None]]:
     from microg_env.controllers.registry import make_controller
 
     n = len(episodes)
@@ -82,29 +84,41 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
     rngs = [seeding.np_random(e.seed)[0] for e in episodes]
     every = np.arange(n)
     core.reset(every, rngs)
-    groups = []  # (controller, its rigs)
+    groups = []  # (name, controller, its rigs)
     for who in dict.fromkeys((e.controller, e.gains) for e in episodes):
         rigs = np.array([i for i, e in enumerate(episodes) if (e.controller, e.gains) == who])
         controller = make_controller(who[0], core.control_period_s, core.base_params, dict(who[1]))
         controller.reset(np.arange(rigs.size))
         tell_plants(controller, np.arange(rigs.size), [core.episodes[i].params for i in rigs])
-        groups.append((controller, rigs))
+        groups.append((who[0], controller, rigs))
     channels = CHANNELS[:-1]  # every channel but the reward comes from info
     record = np.zeros((len(CHANNELS), n, int(core.max_steps.max()) + 1))
     info = core.info(every, np.zeros(n, dtype=np.int64))
     for c, name in enumerate(channels):
         record[c, :, 0] = info[name]
     reasons: list[str | None] = [None] * n
+    errors: list[str | None] = [None] * n
     running = every
     is_running = np.ones(n, dtype=bool)
     actions = np.zeros(n)
     reported = 0.0
     while running.size:
-        for controller, rigs in groups:
+        for name, controller, rigs in groups:
             active = is_running[rigs]
-            if active.any():
-                local = np.flatnonzero(active)
-                actions[rigs[active]] = controller(core.observation[rigs[active]], ids=local)[:, 0]
+            if not active.any():
+                continue
+            try:
+                actions[rigs[active]] = controller(core.observation[rigs[active]], ids=np.flatnonzero(active))[:, 0]
+            except Exception as error:  # this controller's rigs stop here; the others run on
+                _stop(rigs[active], f"controller {name!r} raised {type(error).__name__}: {error}", errors, is_running)
+                continue
+            bad = rigs[active][~np.isfinite(actions[rigs[active]])]
+            if bad.size:
+                value = float(actions[bad[0]])
+                _stop(bad, f"controller {name!r} gave a non-finite action ({value!r})", errors, is_running)
+        running = running[is_running[running]]
+        if not running.size:
+            continue
         reward, codes, truncated, _ = core.step(running, np.clip(actions[running], -1.0, 1.0), rngs)
         info = core.info(running, codes)
         column = int(core.steps[running[0]])  # the rigs started together: one step count
@@ -122,6 +136,8 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
             done = n if not running.size else done
             progress(done - reported)
             reported = done
+    if progress is not None and reported < n:  # rigs a controller stopped count as done
+        progress(n - reported)
     runs = []
     for i, episode in enumerate(core.episodes):
         length = int(core.steps[i]) + 1
@@ -134,5 +150,12 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
             termination_reason=reasons[i],
             **arrays,
         )
-        runs.append((trajectory, episode.params))
+        runs.append((trajectory, episode.params, errors[i]))
     return runs
+
+
+def _stop(rigs: np.ndarray, error: str, errors: list[str | None], is_running: np.ndarray) -> None:
+    """End rigs ``rigs`` where they are, with ``error`` and the time it came."""
+    for i in rigs:
+        errors[i] = error
+    is_running[rigs] = False

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from microg_env.analysis.comparison import MAX_SEEDS, MAX_WORKERS, TEST_SEED
 from microg_env.cli.common import (
+    MAX_SEED,
     ProgressStream,
     add_duration_option,
     check_writable_folder,
@@ -48,12 +49,13 @@ def _cmd_train(args: argparse.Namespace) -> int:
     given = {field: getattr(args, field) for field in _RUN_FIELDS.values() if getattr(args, field) is not None}
     command = " ".join(["microg", *map(shlex.quote, args.argv)])
     settings = TrainSettings(**given, timesteps=args.timesteps, command=command)
-    resume = None
+    resume, algo = None, settings.algo
     if args.resume is not None:
         resume = Path(args.resume)
         if not (args.resume.strip() and resume.is_dir()):
             raise ValueError(f"--resume {args.resume!r}: no such run folder")
         _, run, _, _ = resumed_run(resume, settings)  # a run that cannot go on is named before anything is written
+        algo = run.algo
         changed = [
             option for option, field in _RUN_FIELDS.items() if field in given and given[field] != getattr(run, field)
         ]
@@ -67,7 +69,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             raise ValueError(f"--hyperparams: {error}" if named else str(error)) from None
         check_writable_folder(settings.log_folder, "--log-folder")
     stream = ProgressStream(sys.stderr)
-    with tqdm(total=0, unit="step", unit_scale=True, desc=f"train {args.algo}", file=stream, disable=args.quiet) as bar:
+    with tqdm(total=0, unit="step", unit_scale=True, desc=f"train {algo}", file=stream, disable=args.quiet) as bar:
 
         def progress(done: int, total: int) -> None:
             bar.total = total
@@ -96,6 +98,11 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             check_controller_name(name)
         except ValueError as error:
             raise ValueError(f"--controllers: {error}") from None
+    last = args.first_seed + args.seeds - 1
+    if last > MAX_SEED:
+        raise ValueError(
+            f"--first-seed: {args.first_seed} with --seeds {args.seeds} runs seed {last}, above {MAX_SEED}"
+        )
     if args.reference is not None and args.reference not in controllers:
         raise ValueError(f"--reference: must be one of --controllers {','.join(controllers)}, got {args.reference!r}")
     known = comparison_scenarios()

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 
+from microg_env import validate
 from microg_env.controllers.base import Controller
 from microg_env.controllers.feedforward import AdaptiveFeedforward, Feedforward, Oracle
 from microg_env.controllers.pid import PID, load_gains
@@ -20,7 +21,7 @@ from microg_env.controllers.policy import (
     shipped_policies,
     shipped_policy_folder,
 )
-from microg_env.params import RigParams
+from microg_env.params import CONTROL_PERIOD_RANGE_S, RigParams
 
 #: The classical baselines: the paper's PID, its derivative-on-measurement variant, the PID with
 #: the nominal model's feed-forward, that feed-forward learning the motor's cogging as it runs
@@ -59,6 +60,7 @@ def make_controller(
     fields of a baseline's tuned PID gains (``{"ki_per_s2": 5000.0}``; the feed-forward's feedback loop
     is ``pid``'s)."""
     check_controller_name(name)
+    validate.between("control_period_s", control_period_s, *CONTROL_PERIOD_RANGE_S, "s")
     if gains and name not in BASELINES:
         raise ValueError(f"gains {dict(gains)!r}: controller {name!r} has no PID gains to replace")
     if name in BASELINES:

@@ -24,6 +24,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from microg_env import validate
 from microg_env.analysis.batch import EpisodeSpec, run_batches
 from microg_env.analysis.metrics import RunMetrics, compute_metrics
 from microg_env.analysis.trajectory import Trajectory
@@ -124,6 +125,8 @@ def run_many(
     ``workers``: the batch's threads and the processes of the ideal references;
     ``progress(runs)``: finished fractions of runs; ``keep_trajectories``: keep each result's
     trajectory and reference (else only metrics, so memory holds one batch)."""
+    for spec in specs:  # before anything runs
+        validate.instance("run spec", spec, RunSpec)
     groups: dict[str, list[int]] = {}
     for i, spec in enumerate(specs):
         groups.setdefault(spec.batch_key, []).append(i)
@@ -223,7 +226,10 @@ def _run_group(
     for batch in run_batches(episodes, settings, workers, progress):
         jobs: dict[tuple, tuple] = {}
         keys = []
-        for _, trajectory, params in batch:
+        for _, trajectory, params, error in batch:
+            if error is not None:  # no reference for a run its controller stopped
+                keys.append(None)
+                continue
             length = float(trajectory.time_s[-1])
             keys.append((repr(trajectory.scenario), repr(params), length))
             jobs.setdefault(
@@ -232,7 +238,10 @@ def _run_group(
         computed = pool.map(_reference, jobs.values()) if pool is not None else map(_reference, jobs.values())
         references = dict(zip(jobs, computed, strict=True))
         out = []
-        for (i, trajectory, _), key in zip(batch, keys, strict=True):
+        for (i, trajectory, _, error), key in zip(batch, keys, strict=True):
+            if error is not None:  # its controller failed: only its runs fail
+                out.append((i, RunResult(group[i], None, f"{error} at t = {trajectory.time_s[-1]:.3f} s")))
+                continue
             reference = references[key]
             metrics = compute_metrics(trajectory, reference)
             out.append(
