@@ -194,16 +194,13 @@ def _tiny_hyperparams(tmp_path: Path, algo: str) -> Path:
 
 
 def _settings(tmp_path, algo, timesteps, **kwargs):
+    defaults = {"eval_freq": 128, "eval_episodes": 1, "checkpoint_freq": 128, "command": "pytest"}
     return TrainSettings(
         algo=algo,
         timesteps=timesteps,
         hyperparams=str(_tiny_hyperparams(tmp_path, algo)),
         log_folder=str(tmp_path / "logs"),
-        eval_freq=128,
-        eval_episodes=1,
-        checkpoint_freq=128,
-        command="pytest",
-        **kwargs,
+        **(defaults | kwargs),
     )
 
 
@@ -439,3 +436,36 @@ def test_the_cli_progress_bar_names_the_default_algorithm(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "train ppo" in err
     assert "train None" not in err
+
+
+def test_a_run_stopped_in_its_final_evaluation_is_finished_by_a_resume(tmp_path, monkeypatch):
+    """Ctrl-C in the end-of-run evaluation used to escape as a traceback, and the run (checkpointed
+    at its target) could not be resumed: 'already has 128 steps'. Now it stops like any Ctrl-C and a
+    resume at the target only evaluates and exports; a finished run still refuses."""
+    from microg_env.learning import train as training
+
+    def interrupted(self, model):
+        raise KeyboardInterrupt
+
+    settings = _settings(tmp_path, "ppo", 128, eval_freq=100_000)  # the only evaluation is the final one
+    monkeypatch.setattr(training._Run, "evaluate", interrupted)
+    with pytest.raises(TrainingInterrupted, match="--resume"):
+        train(settings)
+    monkeypatch.undo()
+    folder = tmp_path / "logs" / "ppo" / f"{ENV_ID}_1"
+    assert not (folder / "policy").exists()
+    train(settings, resume_folder=folder)
+    assert [row["timesteps"] for row in json.loads((folder / "evaluations.json").read_text())] == [128]
+    assert json.loads((folder / "policy" / "policy.json").read_text())["timesteps"] == 128
+    assert json.loads((folder / "checkpoints" / "latest.json").read_text())["finished"] is True
+    with pytest.raises(ValueError, match="already has 128 steps"):
+        train(settings, resume_folder=folder)
+
+
+def test_a_resumed_run_evaluates_its_last_model_even_under_the_evaluation_period(tmp_path):
+    """A run evaluated at 128 steps and resumed to 256 with evaluations every 100 000 steps used to
+    keep the 128-step evaluation as its last: the second session's training was never evaluated."""
+    folder = train(_settings(tmp_path, "ppo", 128))  # evaluates at 128 (its --eval-freq)
+    train(_settings(tmp_path, "ppo", 256, eval_freq=100_000), resume_folder=folder)
+    rows = json.loads((folder / "evaluations.json").read_text())
+    assert [row["timesteps"] for row in rows] == [128, 256]

@@ -185,7 +185,7 @@ def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings
     if target is not None:
         params = replace(params, n_timesteps=target)
         settings = replace(settings, timesteps=target)
-    if params.n_timesteps <= state["timesteps"]:
+    if params.n_timesteps <= state["timesteps"] and state.get("finished", True):
         raise ValueError(
             f"--timesteps {params.n_timesteps}: the run in {str(folder)!r} already has {state['timesteps']} steps; "
             "ask for more"
@@ -270,6 +270,7 @@ class _Run:
 
         resuming = self.state["timesteps"] > 0
         self.state["sessions"] += 1
+        self.state["finished"] = False  # until the final evaluation and export are on disk
         # Envs are seeded seed..seed+n-1; a resumed session draws fresh seeds from (seed, steps run),
         # far from the validation (500+) and test (1000+) seeds.
         env_seed = session_seed(self.settings.seed, self.state["timesteps"])
@@ -284,30 +285,33 @@ class _Run:
             f"{command}"
         )
         callbacks = CallbackList([_callback(self)])
-        interrupted = False
-        try:
+        start = model.num_timesteps
+        try:  # no steps left: a session that finishes a run stopped after its last step (sets up the logger)
             model.learn(
-                target - model.num_timesteps,
+                max(target - model.num_timesteps, 0),
                 callback=callbacks,
                 reset_num_timesteps=False,
                 tb_log_name=self.params.algo,
                 log_interval=1 if self.params.algo == "ppo" else 10,
             )
         except KeyboardInterrupt:
-            interrupted = True
-        self.checkpoint(model)
+            self._stop(model, venv, start)
+        if model.num_timesteps > start:  # after the last step's transition is stored (a callback's is before)
+            self.checkpoint(model)
+        try:  # the last model evaluated (and exported if best), whichever session trained it
+            if not self.evaluations or self.evaluations[-1]["timesteps"] < model.num_timesteps:
+                self.evaluate(model)
+            with atomic_path(self.folder / f"{self.params.env_id}.zip") as temporary:
+                model.save(temporary)
+            normalization = model.get_vec_normalize_env()
+            if normalization is not None:
+                with atomic_path(self.folder / "vecnormalize.pkl") as temporary:
+                    normalization.save(str(temporary))
+        except KeyboardInterrupt:
+            self._stop(model, venv, model.num_timesteps)  # checkpointed above
         venv.close()
-        if interrupted:
-            self.log(f"interrupted at {model.num_timesteps} steps; continue with: microg train --resume {self.folder}")
-            raise TrainingInterrupted(f"interrupted; continue with: microg train --resume {self.folder}")
-        if not self.evaluations:  # shorter than --eval-freq: evaluate (and export) once at the end
-            self.evaluate(model)
-        with atomic_path(self.folder / f"{self.params.env_id}.zip") as temporary:
-            model.save(temporary)
-        normalization = model.get_vec_normalize_env()
-        if normalization is not None:
-            with atomic_path(self.folder / "vecnormalize.pkl") as temporary:
-                normalization.save(str(temporary))
+        self.state["finished"] = True
+        write_text(self.folder / CHECKPOINTS / LATEST, json.dumps(self.state, indent=2) + "\n")
         best = self.state["best_cost"]
         best = "none (every evaluation failed)" if best is None else f"{best:.4g}"
         self.log(
@@ -315,6 +319,14 @@ class _Run:
             f"{self.state['sessions']} session(s); best evaluation cost {best}"
         )
         return self.folder
+
+    def _stop(self, model, venv, start: int) -> None:
+        """Ctrl-C: the run as it is, checkpointed if this session stepped since ``start``, and how to go on."""
+        if model.num_timesteps > start:
+            self.checkpoint(model)
+        venv.close()
+        self.log(f"interrupted at {model.num_timesteps} steps; continue with: microg train --resume {self.folder}")
+        raise TrainingInterrupted(f"interrupted; continue with: microg train --resume {self.folder}")
 
     def checkpoint(self, model) -> None:
         """Save model, normalisation and replay buffer, then point ``latest.json`` at them."""
