@@ -1,0 +1,24 @@
+"""The analysis scripts behind the adaptive baseline's settings and the README's partial oracles run."""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+import pytest
+
+TRAINING = Path(__file__).resolve().parents[1] / "training"
+
+
+@pytest.mark.parametrize(
+    ("name", "args", "expected"),
+    [
+        ("tune_adaptive", ["--steps", "0.003", "--seeds", "1", "--duration", "0.3"], "step 0.003: J = "),
+        ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
+    ],
+)
+def test_training_script_runs(name, args, expected, monkeypatch, capsys):
+    monkeypatch.syspath_prepend(str(TRAINING))
+    module = importlib.import_module(name)
+    assert module.main(args) == 0
+    assert expected in capsys.readouterr().out
