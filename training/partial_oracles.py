@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 
-from microg_env.analysis.evaluate import run_with_metrics
+from microg_env.analysis.evaluate import finite_mean, run_with_metrics
 from microg_env.controllers.feedforward import PLANT_FIELDS, Feedforward, plant_model
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
@@ -62,8 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     seeds = [int(text) for text in args.seeds.split(",")]
     for label, told in TOLD.items():
         runs = [run_with_metrics(env, PartialOracle(env.control_period_s, told), s, args.duration)[2] for s in seeds]
-        free = np.nanmean([run.flexible_unit_excursion_free_fall_m for run in runs]) * 1e6
-        collision = np.nanmean([run.flexible_unit_excursion_collision_m for run in runs]) * 1e6
+        free = finite_mean(run.flexible_unit_excursion_free_fall_m for run in runs) * 1e6
+        collision = finite_mean(run.flexible_unit_excursion_collision_m for run in runs) * 1e6
         print(f"{label:34s} x in free fall {free:.3f} um, at the collision {collision:.3f} um")
     return 0
 

@@ -12,9 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
-
-from microg_env.analysis.evaluate import run_with_metrics
+from microg_env.analysis.evaluate import finite_mean, run_with_metrics
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
@@ -30,9 +28,9 @@ def cost(step: float, seeds: int, duration_s: float | None) -> float:
             controller = make_controller("adaptive", env.control_period_s)
             controller.adaptive_constants = (step, *controller.adaptive_constants[1:])
             metrics = run_with_metrics(env, controller, seed, duration_s)[2]
-            error = np.nanmean(np.abs(metrics.compensation_error_pct))
+            error = finite_mean(map(abs, metrics.compensation_error_pct))
             values.append(error + metrics.flexible_unit_excursion_collision_m * 1e6 / 10)
-    return float(np.nanmean(values))
+    return finite_mean(values)
 
 
 def main(argv: list[str] | None = None) -> int:
