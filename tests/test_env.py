@@ -187,8 +187,10 @@ def test_reward_keeps_a_gradient_from_millimetres_to_nanometres_and_never_pays_f
     assert reward == pytest.approx(info["reward_x"])
 
 
-def test_a_zero_residual_is_its_base_controller_exactly():
-    """action_mode="residual": an action of 0 leaves the base controller (here feedforward) alone."""
+@pytest.mark.parametrize("name", ["feedforward", "adaptive", "oracle"])
+def test_a_zero_residual_is_its_base_controller_exactly(name):
+    """action_mode="residual": an action of 0 leaves the base controller alone (the oracle base is
+    told each drawn plant by the environment, as the harness tells the oracle)."""
     from microg_env.analysis.evaluate import run_episode
     from microg_env.controllers import PolicyController, make_controller
 
@@ -196,10 +198,14 @@ def test_a_zero_residual_is_its_base_controller_exactly():
         def predict(self, observation, deterministic=True):
             return np.zeros(1, dtype=np.float32), None
 
+    drawn = DomainRandomization.full()
     base = run_episode(
-        MicroGravityLandingEnv(condition=2), make_controller("feedforward", 1e-3), seed=3, duration_s=5.0
+        MicroGravityLandingEnv(condition=2, domain_randomization=drawn),
+        make_controller(name, 1e-3),
+        seed=3,
+        duration_s=5.0,
     )
-    env = MicroGravityLandingEnv(condition=2, action_mode="residual", base_controller="feedforward")
+    env = MicroGravityLandingEnv(condition=2, action_mode="residual", base_controller=name, domain_randomization=drawn)
     residual = run_episode(env, PolicyController(Zero()), seed=3, duration_s=5.0)
     np.testing.assert_array_equal(base.x_m, residual.x_m)
     np.testing.assert_array_equal(base.command_m_s, residual.command_m_s)

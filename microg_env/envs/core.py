@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from microg_env import validate
-from microg_env.controllers.base import MAX_SPEED_M_S
+from microg_env.controllers.base import MAX_SPEED_M_S, tell_plants
 from microg_env.controllers.policy import RESIDUAL_LIMIT_M
 from microg_env.controllers.registry import BASELINES, make_controller
 from microg_env.envs import period
@@ -316,6 +316,7 @@ class LandingCore:
         self._noise.restart(ids)
         if self.base is not None:
             self.base.reset(ids)
+            tell_plants(self.base, ids, [self.episodes[i].params for i in ids])  # an oracle base knows them
         self._place_due_loads(ids, self.trim_height_m[ids])
         physics.forward(ids)
         self._observe(ids, rngs)
