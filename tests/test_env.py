@@ -335,6 +335,7 @@ def test_bad_actions_raise(action):
         ({"residual_limit_m": 1.0}, "residual_limit_m"),
         ({"scenario_sampler": "testing"}, "scenario_sampler"),
         ({"domain_randomization": {"pad_stiffness": 2.0}}, "pad_stiffness"),
+        ({"domain_randomization": "drive"}, "domain_randomization"),
         ({"imperfections": {"friction": "yes"}}, "friction"),
         ({"condition": np.array(3)}, "condition"),
         ({"condition": [3]}, "condition"),
@@ -422,7 +423,8 @@ def test_the_full_randomisation_draws_the_drive_after_the_plant_and_writes_it_in
     assert new.servo.coulomb_torque_n_m == old.servo.coulomb_torque_n_m
     assert old.servo.cogging_phase_rad == 0.0
     assert old.servo.speed_loop_gain_hz == 100.0
-    env = MicroGravityLandingEnv(condition=1, domain_randomization=full)
+    env = MicroGravityLandingEnv(condition=1, domain_randomization="full")  # as a YAML file names it
+    assert env.domain_randomization == full
     phases = set()
     for seed in range(4):
         env.reset(seed=seed)

@@ -104,7 +104,7 @@ class LandingCore:
         base_controller: str = "pid",
         residual_limit_m: float = RESIDUAL_LIMIT_M,
         imperfections: Imperfections | Mapping | None = None,
-        domain_randomization: DomainRandomization | Mapping | bool | None = None,
+        domain_randomization: DomainRandomization | Mapping | bool | str | None = None,
         sensor_set: str = "extended",
         params: RigParams | None = None,
         xml_file: str | None = None,
@@ -493,11 +493,13 @@ def _imperfections(value: Imperfections | Mapping | None) -> Imperfections:
     return validate.instance("imperfections", value, Imperfections)
 
 
-def _randomization(value: DomainRandomization | Mapping | bool | None) -> DomainRandomization | None:
+def _randomization(value: DomainRandomization | Mapping | bool | str | None) -> DomainRandomization | None:
     if value is None or value is False:
         return None
     if value is True:
         return DomainRandomization()
+    if value == "full":  # the plant and the drive (a YAML file can name it)
+        return DomainRandomization.full()
     if isinstance(value, Mapping):
         return DomainRandomization(**value)
     return validate.instance("domain_randomization", value, DomainRandomization)
