@@ -469,3 +469,69 @@ def test_a_resumed_run_evaluates_its_last_model_even_under_the_evaluation_period
     train(_settings(tmp_path, "ppo", 256, eval_freq=100_000), resume_folder=folder)
     rows = json.loads((folder / "evaluations.json").read_text())
     assert [row["timesteps"] for row in rows] == [128, 256]
+
+
+def _card(folder):
+    return json.loads((folder / "policy.json").read_text())
+
+
+def _set_env(key, value):
+    def change(folder):
+        card = _card(folder)
+        card["env_kwargs"][key] = str(folder) if value == "{folder}" else value
+        (folder / "policy.json").write_text(json.dumps(card))
+
+    return change
+
+
+def _set_array(key, value):
+    def change(folder):
+        arrays = dict(np.load(folder / "policy.npz"))
+        arrays[key] = value
+        np.savez(folder / "policy.npz", **arrays)
+
+    return change
+
+
+def _inflating(folder):
+    arrays = dict(np.load(folder / "policy.npz"))
+    arrays["padding"] = np.zeros(70 * 2**20, dtype=np.uint8)  # 70 MB of zeros: a 70 kB archive
+    np.savez_compressed(folder / "policy.npz", **arrays)
+
+
+def _fifo(folder):
+    import os
+
+    (folder / "policy.npz").unlink()
+    os.mkfifo(folder / "policy.npz")
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (_set_env("base_controller", "{folder}"), "base_controller"),  # itself: was a RecursionError
+        (_set_env("base_controller", "residual-ppo"), "base_controller"),  # a policy: was an AttributeError
+        (_set_env("base_controller", None), "base_controller"),
+        (_set_env("decision_period", 2.5), "decision_period"),
+        (_set_env("decision_period", [5]), "decision_period"),
+        (_set_env("control_period_s", float("nan")), "control_period_s"),
+        (_set_env("residual_limit_m", None), "residual_limit_m"),
+        (_set_array("weight_0", np.full((64, 10), "a")), "finite float"),  # was a failure at the first step
+        (_set_array("weight_2", np.zeros((2, 64))), "last layer"),
+        (_set_array("obs_mean", np.zeros(9)), "obs_mean"),
+        (_inflating, "unpacks to"),
+        (_fifo, "not a regular file"),
+    ],
+)
+def test_a_bad_policy_folder_is_named_before_it_runs(tmp_path, change, message):
+    import shutil
+
+    from microg_env.controllers.policy import shipped_policy_folder
+    from microg_env.controllers.registry import check_controller_name
+
+    folder = tmp_path / "policy"
+    shutil.copytree(shipped_policy_folder("residual-ppo"), folder)
+    change(folder)
+    with pytest.raises(ValueError, match=message) as error:
+        check_controller_name(str(folder))
+    assert str(folder) in str(error.value)

@@ -26,7 +26,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from microg_env.compiled import jit
-from microg_env.controllers.base import MAX_SPEED_M_S, SetpointController, VectorController
+from microg_env.controllers.base import MAX_SPEED_M_S, SetpointController, VectorController, tell_plants
 from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES
 from microg_env.params import CONTROL_PERIOD_S
 
@@ -38,6 +38,11 @@ collision excursion (about 1 um), so the whole action range is useful near touch
 ACTIVATIONS = {"tanh": np.tanh, "relu": lambda z: np.maximum(z, 0.0)}
 #: Files of an exported policy folder.
 NETWORK_FILE, CARD_FILE = "policy.npz", "policy.json"
+#: Most bytes an exported network may hold once unpacked (the shipped one: 23 kB); checked from the
+#: archive's headers before anything is read, so a small archive cannot unpack to gigabytes.
+MAX_NETWORK_BYTES = 64 * 2**20
+#: Most bytes a policy card may hold.
+MAX_CARD_BYTES = 2**20
 
 
 @dataclass(frozen=True)
@@ -61,6 +66,18 @@ class MLPPolicy:
             raise ValueError(f"activation must be one of {', '.join(ACTIVATIONS)}, got {self.activation!r}")
         if len(self.weights) != len(self.biases) or not self.weights:
             raise ValueError("a policy needs as many bias vectors as weight matrices, and at least one layer")
+        arrays = (*self.weights, *self.biases, self.obs_mean, self.obs_var)
+        if any(a.dtype.kind != "f" for a in arrays) or not all(np.isfinite(a).all() for a in arrays):
+            raise ValueError("every weight, bias and normalisation statistic must be a finite float array")
+        if self.obs_mean.shape != (len(OBSERVATION_SCALES),) or self.obs_var.shape != self.obs_mean.shape:
+            raise ValueError(
+                f"obs_mean and obs_var must have the observation's shape ({len(OBSERVATION_SCALES)},), "
+                f"got {self.obs_mean.shape} and {self.obs_var.shape}"
+            )
+        if (self.obs_var < 0).any():
+            raise ValueError("obs_var must not be negative")
+        if self.weights[-1].ndim != 2 or self.weights[-1].shape[0] != 1:
+            raise ValueError(f"the last layer must give the one action, got weight {self.weights[-1].shape}")
         size = self.obs_mean.shape[0]
         for weight, bias in zip(self.weights, self.biases, strict=True):
             if weight.ndim != 2 or weight.shape[1] != size or bias.shape != (weight.shape[0],):
@@ -100,6 +117,13 @@ class MLPPolicy:
 
     @classmethod
     def load(cls, path: str | Path) -> MLPPolicy:
+        path = Path(path)
+        if not path.is_file():  # not a FIFO or a device that would block or never end
+            raise ValueError("not a regular file")
+        with zipfile.ZipFile(path) as archive:
+            unpacked = sum(member.file_size for member in archive.infolist())
+        if unpacked > MAX_NETWORK_BYTES:
+            raise ValueError(f"it unpacks to {unpacked} bytes, more than the {MAX_NETWORK_BYTES} a policy may hold")
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             layers = sum(1 for key in data.files if key.startswith("weight_"))
@@ -164,6 +188,11 @@ class PolicyController(VectorController):
         self._base_command_m_s[ids] = command.astype(np.float64) * MAX_SPEED_M_S
         return command
 
+    def know_plants(self, ids: np.ndarray, plants: list) -> None:
+        """Pass the plants on to a base that takes them (an oracle base)."""
+        if self.base is not None:
+            tell_plants(self.base, ids, plants)
+
 
 @jit
 def count_periods(ids, periods, decision_period, due):
@@ -192,15 +221,37 @@ def shipped_policies() -> tuple[str, ...]:
 def policy_card(folder: str | Path) -> dict[str, Any]:
     """The ``policy.json`` of an exported policy folder: how it acts, how it was trained."""
     path = Path(folder) / CARD_FILE
+    if not path.exists():
+        raise ValueError(f"policy folder {str(folder)!r} has no {CARD_FILE}")
+    if not path.is_file() or path.stat().st_size > MAX_CARD_BYTES:
+        raise ValueError(f"{str(path)!r} is not a policy card (a regular file of at most {MAX_CARD_BYTES} bytes)")
     try:
         card = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ValueError(f"policy folder {str(folder)!r} has no {CARD_FILE}") from None
-    except (OSError, json.JSONDecodeError) as error:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise ValueError(f"cannot read {str(path)!r}: {error}") from None
     if not (isinstance(card, dict) and isinstance(card.get("env_kwargs"), dict)):
         raise ValueError(f"{str(path)!r} is not a policy card (a JSON object with an env_kwargs object)")
+    try:
+        _check_deployment(card["env_kwargs"])
+    except ValueError as error:
+        raise ValueError(f"{str(path)!r}: env_kwargs.{error}") from None
     return card
+
+
+def _check_deployment(env: dict[str, Any]) -> None:
+    """The env_kwargs a deployed policy reads: of the right kinds and ranges, the base controller a
+    classical one (a policy on a policy, or on itself, is refused)."""
+    from microg_env import validate
+    from microg_env.controllers.registry import BASELINES
+    from microg_env.params import CONTROL_PERIOD_RANGE_S
+
+    validate.choice("action_mode", env.get("action_mode", "speed"), ("speed", "residual"))
+    validate.choice("base_controller", env.get("base_controller", "pid"), BASELINES)
+    if type(env.get("decision_period", 1)) is not int:
+        raise ValueError(f"decision_period must be an integer, got {env['decision_period']!r}")
+    validate.integer("decision_period", env.get("decision_period", 1), 1, 1000)
+    validate.between("control_period_s", env.get("control_period_s", CONTROL_PERIOD_S), *CONTROL_PERIOD_RANGE_S, "s")
+    validate.positive("residual_limit_m", env.get("residual_limit_m", RESIDUAL_LIMIT_M), "m", 1e-3)
 
 
 def shipped_policy_folder(name: str) -> Path:
