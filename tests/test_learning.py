@@ -535,3 +535,22 @@ def test_a_bad_policy_folder_is_named_before_it_runs(tmp_path, change, message):
     with pytest.raises(ValueError, match=message) as error:
         check_controller_name(str(folder))
     assert str(folder) in str(error.value)
+
+
+def test_the_log_states_the_base_controllers_cost_as_the_line_to_beat(ppo_run):
+    """A residual run evaluates its base controller alone once (the same validation episodes and
+    cost as every evaluation), logs it, and says at the end whether its best beat it."""
+    from microg_env.analysis.evaluate import evaluate
+    from microg_env.learning.train import VALIDATION_SEED, _speed_env
+
+    folder = ppo_run[0]
+    entry = yaml.safe_load((folder / "config.yml").read_text())[ENV_ID]
+    base = make_controller(entry["env_kwargs"]["base_controller"], 1e-3)
+    runs, _ = evaluate(lambda: _speed_env(ENV_ID, entry["env_kwargs"]), base, [VALIDATION_SEED])
+    state = json.loads((folder / "checkpoints" / "latest.json").read_text())
+    assert state["base_cost"] == pytest.approx(control_cost(runs), rel=1e-12)
+    log = (folder / "train.log").read_text()
+    assert log.count("the line to beat") == 1  # once per run, not per session
+    best = min(row["cost"] for row in json.loads((folder / "evaluations.json").read_text()))
+    verdict = "it beats" if best < state["base_cost"] else "it does NOT beat"
+    assert f"; {verdict} the base controller alone ({state['base_cost']:.4g})" in log.splitlines()[-1]

@@ -284,6 +284,7 @@ class _Run:
             f"{self.params.env_id}, {self.params.n_envs} envs, target {target} steps, seed {self.settings.seed}; "
             f"{command}"
         )
+        self.base_cost()
         callbacks = CallbackList([_callback(self)])
         start = model.num_timesteps
         try:  # no steps left: a session that finishes a run stopped after its last step (sets up the logger)
@@ -312,11 +313,15 @@ class _Run:
         venv.close()
         self.state["finished"] = True
         write_text(self.folder / CHECKPOINTS / LATEST, json.dumps(self.state, indent=2) + "\n")
-        best = self.state["best_cost"]
+        best, base = self.state["best_cost"], self.state.get("base_cost")
+        verdict = ""
+        if best is not None and base is not None:
+            verdict = "; it beats" if best < base else "; it does NOT beat"
+            verdict += f" the base controller alone ({base:.4g})"
         best = "none (every evaluation failed)" if best is None else f"{best:.4g}"
         self.log(
             f"finished: {model.num_timesteps} steps in {self.wall_s():.1f} s wall over "
-            f"{self.state['sessions']} session(s); best evaluation cost {best}"
+            f"{self.state['sessions']} session(s); best evaluation cost {best}{verdict}"
         )
         return self.folder
 
@@ -351,17 +356,32 @@ class _Run:
         if previous_buffer and previous_buffer != files.get("replay_buffer"):
             (folder / previous_buffer).unlink(missing_ok=True)  # one replay buffer is enough (and large)
 
-    def evaluate(self, model) -> None:
-        """The deterministic policy on the validation schedules, by the project's metrics."""
-        from microg_env.analysis.evaluate import control_cost, evaluate, finite_mean
+    def validate(self, policy) -> tuple[list, float, float]:
+        """The runs, failure rate and cost of ``policy`` deployed on the validation schedules."""
+        from microg_env.analysis.evaluate import control_cost, evaluate
 
         env_kwargs = self.params.env_kwargs
-        normalization = model.get_vec_normalize_env()
-        policy = _NormalizedPolicy(model, normalization)
         controller = deployed_controller(policy, env_kwargs)
         seeds = range(VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes)
         runs, failure_rate = evaluate(lambda: _speed_env(self.params.env_id, env_kwargs), controller, seeds)
-        cost = control_cost(runs)
+        return runs, failure_rate, control_cost(runs)
+
+    def base_cost(self) -> None:
+        """A residual policy's line to beat: its base controller alone (a zero residual) on the
+        validation schedules, once per run, logged and kept in ``latest.json``."""
+        if self.params.env_kwargs.get("action_mode") != "residual" or "base_cost" in self.state:
+            return
+        *_, cost = self.validate(_ZeroPolicy())
+        self.state["base_cost"] = _json_number(cost)
+        base = self.params.env_kwargs.get("base_controller", "pid")
+        self.log(f"the base controller alone ({base}, a zero residual): cost {_show(cost, '.4g')}, the line to beat")
+
+    def evaluate(self, model) -> None:
+        """The deterministic policy on the validation schedules, by the project's metrics."""
+        from microg_env.analysis.evaluate import finite_mean
+
+        normalization = model.get_vec_normalize_env()
+        runs, failure_rate, cost = self.validate(_NormalizedPolicy(model, normalization))
         row = {
             "timesteps": model.num_timesteps,
             "wall_s": round(self.wall_s(), 1),
@@ -374,6 +394,8 @@ class _Run:
         for key, value in row.items():
             if key not in ("timesteps", "wall_s"):
                 model.logger.record(f"eval/{key}", value)
+        if self.state.get("base_cost") is not None:  # the line to beat, beside the cost in TensorBoard
+            model.logger.record("eval/base_cost", self.state["base_cost"])
         model.logger.dump(model.num_timesteps)
         best = self.state["best_cost"]
         new_best = math.isfinite(cost) and (best is None or cost < best)
@@ -455,6 +477,13 @@ def _callback(run: _Run):
 
 def _next_multiple(steps: int, every: int) -> int:
     return (steps // every + 1) * every
+
+
+class _ZeroPolicy:
+    """The residual policy that leaves its base controller alone."""
+
+    def predict(self, observation: np.ndarray, deterministic: bool = True):
+        return np.zeros((len(observation), 1), dtype=np.float32), None
 
 
 class _NormalizedPolicy:
