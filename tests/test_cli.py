@@ -398,3 +398,18 @@ def test_train_and_resume_from_the_command_line(tmp_path, capsys):
     assert "--timesteps 64" in args_file  # the command that started the run
     card = json.loads((run / "policy" / "policy.json").read_text())
     assert card["command"].startswith("microg train")
+
+
+@pytest.mark.parametrize("module", ["rig", "learning"])
+def test_ctrl_c_prints_one_line_and_exits_130(module, monkeypatch, capsys):
+    """Ctrl-C in microg run or compare used to print a traceback."""
+    import importlib
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    name = {"rig": "_cmd_run", "learning": "_cmd_compare"}[module]
+    monkeypatch.setattr(importlib.import_module(f"microg_env.cli.{module}"), name, interrupted)
+    command = ["run"] if module == "rig" else ["compare", "--quiet"]
+    assert main(command) == 130
+    assert capsys.readouterr().err == "microg: interrupted\n"

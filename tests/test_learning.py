@@ -554,3 +554,17 @@ def test_the_log_states_the_base_controllers_cost_as_the_line_to_beat(ppo_run):
     best = min(row["cost"] for row in json.loads((folder / "evaluations.json").read_text()))
     verdict = "it beats" if best < state["base_cost"] else "it does NOT beat"
     assert f"; {verdict} the base controller alone ({state['base_cost']:.4g})" in log.splitlines()[-1]
+
+
+def test_ctrl_c_before_the_first_checkpoint_leaves_no_run_folder(tmp_path, monkeypatch):
+    """Ctrl-C while a new run is built (here: in its base controller's evaluation) used to escape
+    as a traceback and leave a run folder that takes a run number and holds nothing to resume."""
+    from microg_env.learning import train as training
+
+    def interrupted(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(training._Run, "base_cost", interrupted)
+    with pytest.raises(TrainingInterrupted, match="nothing was kept"):
+        train(_settings(tmp_path, "ppo", 128))
+    assert not list((tmp_path / "logs" / "ppo").iterdir())

@@ -1,10 +1,10 @@
 """The ``microg`` command.
 
 Every user error (a bad option or value, an unwritable output) prints one line to stderr naming
-the option and exits with code 2, before any work is done; output piped into a closed reader
-(``| head``) ends quietly. The commands live in :mod:`microg_env.cli.rig` (the rig and the paper)
-and :mod:`microg_env.cli.learning` (learned controllers); what they share in
-:mod:`microg_env.cli.common`.
+the option and exits with code 2, before any work is done; Ctrl-C prints one line and exits with
+130; output piped into a closed reader (``| head``) ends quietly. The commands live in
+:mod:`microg_env.cli.rig` (the rig and the paper) and :mod:`microg_env.cli.learning` (learned
+controllers); what they share in :mod:`microg_env.cli.common`.
 """
 
 from __future__ import annotations
@@ -49,6 +49,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as error:
         print(f"microg: error: {one_line(str(error))}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT, no traceback
+        print("microg: interrupted", file=sys.stderr)
+        return 130
     except BrokenPipeError:
         # The reader went away (| head): stop quietly, as Python's documentation recommends.
         devnull = os.open(os.devnull, os.O_WRONLY)

@@ -32,6 +32,7 @@ import json
 import math
 import os
 import platform
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -133,7 +134,13 @@ def train(
         folder, settings, params, state = resumed_run(Path(resume_folder), settings)
         write_text(folder / "args.yml", yaml.safe_dump(asdict(settings), sort_keys=False))  # the new target
     run = _Run(folder, settings, params, state, progress, log)
-    return run.learn()
+    try:
+        return run.learn()
+    except KeyboardInterrupt:  # before the training loop took it over (building, the base's evaluation)
+        if resume_folder is None and not (folder / CHECKPOINTS / LATEST).exists():
+            shutil.rmtree(folder, ignore_errors=True)  # nothing to resume: no orphan run folder
+            raise TrainingInterrupted("interrupted before the first checkpoint; nothing was kept") from None
+        raise TrainingInterrupted(f"interrupted; continue with: microg train --resume {folder}") from None
 
 
 def resolve(settings: TrainSettings) -> hp.Hyperparams:
