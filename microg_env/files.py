@@ -1,4 +1,5 @@
-"""Writing results: one atomic-write helper for files and one for folders, and the checks before them.
+"""Writing results: one atomic-write helper for files and one for folders, and the checks before them;
+and reading the small text files a user gives (bounded, regular files only).
 
 Nothing is ever half-written: a file goes to a temporary name beside it and is renamed over the
 target; a folder (a report) is built in a staging folder and swapped in. Output paths are checked
@@ -19,6 +20,30 @@ from pathlib import Path
 
 #: Marker written last into a staging folder: its presence means the folder is complete.
 _COMPLETE = ".complete"
+#: Most bytes of a settings file a user gives (a campaign, a hyperparameter file).
+MAX_SETTINGS_BYTES = 2**20
+
+
+def read_settings_text(path: str | Path, what: str) -> str:
+    """The UTF-8 text of ``path``, a regular file of at most :data:`MAX_SETTINGS_BYTES` (so a device
+    such as /dev/zero or a FIFO is refused, not read until memory runs out); a ValueError names
+    ``what`` and the file otherwise."""
+    path = Path(path)
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        raise ValueError(f"{what} {str(path)!r} does not exist") from None
+    except OSError as error:
+        raise ValueError(f"{what} {str(path)!r} cannot be read: {error.strerror}") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise ValueError(f"{what} {str(path)!r} is not a regular file")
+    if info.st_size > MAX_SETTINGS_BYTES:
+        raise ValueError(f"{what} {str(path)!r} has {info.st_size} bytes, more than the {MAX_SETTINGS_BYTES} allowed")
+    try:
+        with open(path, encoding="utf-8") as stream:
+            return stream.read(MAX_SETTINGS_BYTES + 1)[:MAX_SETTINGS_BYTES]
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"{what} {str(path)!r} cannot be read: {error}") from None
 
 
 def _umask() -> int:

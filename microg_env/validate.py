@@ -9,14 +9,27 @@ from __future__ import annotations
 
 import math
 import numbers
+import reprlib
+
+#: How values are echoed in errors: bounded, so a huge or deeply shared value (a YAML alias bomb)
+#: cannot make a huge message.
+_SHOWN = reprlib.Repr()  # (keyword arguments only from Python 3.12)
+for _name, _limit in {"maxlevel": 3, "maxlist": 6, "maxtuple": 6, "maxdict": 6, "maxset": 6, "maxstring": 200}.items():
+    setattr(_SHOWN, _name, _limit)
+_SHOWN.maxother, _SHOWN.maxlong = 200, 60
+
+
+def shown(value: object) -> str:
+    """``repr(value)``, bounded (long strings and collections are cut with "...")."""
+    return _SHOWN.repr(value)
 
 
 def _real(name: str, value: object) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name} must be a number, got {value!r}")
+        raise ValueError(f"{name} must be a number, got {shown(value)}")
     number = float(value)
     if not math.isfinite(number):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
+        raise ValueError(f"{name} must be a finite number, got {shown(value)}")
     return number
 
 
@@ -33,10 +46,10 @@ def positive(name: str, value: object, unit: str = "", upper: float = math.inf, 
     """A number in (0, upper]; ``why`` names the reason for the upper bound."""
     number = _real(name, value)
     if not number > 0:
-        raise ValueError(f"{name} must be positive, got {value!r}")
+        raise ValueError(f"{name} must be positive, got {shown(value)}")
     if number > upper:
         reason = f" ({why})" if why else ""
-        raise ValueError(f"{name} must be at most {upper:g}{_unit(unit)}{reason}, got {value!r}")
+        raise ValueError(f"{name} must be at most {upper:g}{_unit(unit)}{reason}, got {shown(value)}")
     return number
 
 
@@ -44,10 +57,10 @@ def non_negative(name: str, value: object, unit: str = "", upper: float = math.i
     """A number in [0, upper]."""
     number = _real(name, value)
     if number < 0:
-        raise ValueError(f"{name} must be >= 0, got {value!r}")
+        raise ValueError(f"{name} must be >= 0, got {shown(value)}")
     if number > upper:
         reason = f" ({why})" if why else ""
-        raise ValueError(f"{name} must be at most {upper:g}{_unit(unit)}{reason}, got {value!r}")
+        raise ValueError(f"{name} must be at most {upper:g}{_unit(unit)}{reason}, got {shown(value)}")
     return number
 
 
@@ -56,7 +69,7 @@ def at_least(name: str, value: object, lower: float, unit: str = "", why: str = 
     number = _real(name, value)
     if number < lower:
         reason = f" ({why})" if why else ""
-        raise ValueError(f"{name} must be at least {lower:g}{_unit(unit)}{reason}, got {value!r}")
+        raise ValueError(f"{name} must be at least {lower:g}{_unit(unit)}{reason}, got {shown(value)}")
     return number
 
 
@@ -66,26 +79,26 @@ def between(name: str, value: object, low: float, high: float, unit: str = "", h
     above = number >= high if high_open else number > high
     if number < low or above:
         bracket = ")" if high_open else "]"
-        raise ValueError(f"{name} must be in [{low:g}, {high:g}{bracket}{_unit(unit)}, got {value!r}")
+        raise ValueError(f"{name} must be in [{low:g}, {high:g}{bracket}{_unit(unit)}, got {shown(value)}")
     return number
 
 
 def integer(name: str, value: object, low: int | None = None, high: int | None = None) -> int:
     """An integer in [low, high] (either bound optional)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
+        raise ValueError(f"{name} must be an integer, got {shown(value)}")
     number = int(value)
     if (low is not None and number < low) or (high is not None and number > high):
         low_text = "-inf" if low is None else str(low)
         high_text = "inf" if high is None else str(high)
-        raise ValueError(f"{name} must be an integer in [{low_text}, {high_text}], got {value!r}")
+        raise ValueError(f"{name} must be an integer in [{low_text}, {high_text}], got {shown(value)}")
     return number
 
 
 def choice(name: str, value: object, options: tuple) -> object:
     """One of ``options``."""
     if value not in options:
-        raise ValueError(f"{name} must be one of {', '.join(map(repr, options))}, got {value!r}")
+        raise ValueError(f"{name} must be one of {', '.join(map(repr, options))}, got {shown(value)}")
     return value
 
 

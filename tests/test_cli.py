@@ -413,3 +413,31 @@ def test_ctrl_c_prints_one_line_and_exits_130(module, monkeypatch, capsys):
     command = ["run"] if module == "rig" else ["compare", "--quiet"]
     assert main(command) == 130
     assert capsys.readouterr().err == "microg: interrupted\n"
+
+
+@pytest.mark.parametrize("command", [["campaign", "/dev/zero"], ["train", "--hyperparams", "/dev/zero"]])
+def test_a_device_given_as_a_settings_file_is_refused_not_read(command, capsys):
+    """/dev/zero used to be read until memory ran out."""
+    assert main(command) == 2
+    err = capsys.readouterr().err
+    assert "'/dev/zero' is not a regular file" in err
+    assert err.count("\n") == 1
+
+
+def test_a_yaml_alias_bomb_gives_a_short_error(tmp_path, capsys):
+    """A 0.5 kB file whose aliases expand 9^8 times used to print a 226 MB error."""
+    lines = ["a: &a [x, x, x, x, x, x, x, x, x]"]
+    for i, name in enumerate("bcdefgh"):
+        previous = "abcdefgh"[i]
+        lines.append(
+            f"{name}: &{name} [*{previous}, *{previous}, *{previous}, *{previous}, *{previous}, "
+            f"*{previous}, *{previous}, *{previous}, *{previous}]"
+        )
+    lines.append("MicroGravityLanding-v1: *h")
+    path = tmp_path / "bomb.yml"
+    path.write_text("\n".join(lines) + "\n")
+    assert path.stat().st_size < 1000
+    assert main(["train", "--hyperparams", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "--hyperparams" in err
+    assert len(err) < 5000  # a few kB, not 226 MB

@@ -42,7 +42,9 @@ import numpy as np
 
 from microg_env import validate
 from microg_env.experiments.spec import RunSpec
+from microg_env.files import read_settings_text
 from microg_env.params import parameter_paths
+from microg_env.validate import shown
 
 #: The distributions ``samples:`` draws from, with their arguments.
 DISTRIBUTIONS = {
@@ -87,31 +89,28 @@ class Campaign:
         import yaml
 
         path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise ValueError(f"campaign file {str(path)!r} does not exist") from None
-        except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
-            raise ValueError(f"campaign file {str(path)!r} cannot be read: {error}") from None
+        text = read_settings_text(path, "campaign file")
         try:
             data = yaml.safe_load(text)
         except yaml.YAMLError as error:
-            raise ValueError(f"campaign file {str(path)!r} is not valid YAML: {str(error).splitlines()[0]}") from None
+            raise ValueError(
+                f"campaign file {shown(str(path))} is not valid YAML: {str(error).splitlines()[0]}"
+            ) from None
         try:
             return cls.from_dict(data)
         except ValueError as error:
-            raise ValueError(f"campaign file {str(path)!r}: {error}") from None
+            raise ValueError(f"campaign file {shown(str(path))}: {error}") from None
 
     @classmethod
     def from_dict(cls, data: object) -> Campaign:
         if not isinstance(data, Mapping):
-            raise ValueError(f"must be a mapping with keys {', '.join(_TOP_KEYS)}, got {data!r}")
+            raise ValueError(f"must be a mapping with keys {', '.join(_TOP_KEYS)}, got {shown(data)}")
         unknown = sorted(set(data) - set(_TOP_KEYS))
         if unknown:
-            raise ValueError(f"unknown key {unknown[0]!r}; known: {', '.join(_TOP_KEYS)}")
+            raise ValueError(f"unknown key {shown(unknown[0])}; known: {', '.join(_TOP_KEYS)}")
         name = data.get("name")
         if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
-            raise ValueError(f"name must be letters, digits, '.', '_' or '-' (a folder name), got {name!r}")
+            raise ValueError(f"name must be letters, digits, '.', '_' or '-' (a folder name), got {shown(name)}")
         base = data.get("base") or {}
         validate.instance("base", base, Mapping)
         _check_keys("base", base)
@@ -119,7 +118,7 @@ class Campaign:
             raise ValueError("base: give seeds in seeds:, not seed")
         for key in ("overrides", "gains", "imperfections"):
             if key in base and not isinstance(base[key], Mapping):
-                raise ValueError(f"base: {key} must be a mapping, got {base[key]!r}")
+                raise ValueError(f"base: {key} must be a mapping, got {shown(base[key])}")
         sweep = data.get("sweep") or {}
         validate.instance("sweep", sweep, Mapping)
         _check_keys("sweep", sweep)
@@ -127,10 +126,12 @@ class Campaign:
             if "seed" in _keys(key):
                 raise ValueError("sweep: give seeds in seeds:, not seed")
             if not isinstance(values, list) or not values:
-                raise ValueError(f"sweep: {key} must be a non-empty list, got {values!r}")
+                raise ValueError(f"sweep: {key} must be a non-empty list, got {shown(values)}")
             keys = _keys(key)
             if len(keys) > 1 and not all(isinstance(v, list) and len(v) == len(keys) for v in values):
-                raise ValueError(f"sweep: each value of {key!r} must be a list of {len(keys)} values, got {values!r}")
+                raise ValueError(
+                    f"sweep: each value of {shown(key)} must be a list of {len(keys)} values, got {shown(values)}"
+                )
         samples = data.get("samples")
         if samples is not None:
             _check_samples(samples)
@@ -152,7 +153,7 @@ class Campaign:
             validate.choice("report", report, tuple(STUDIES))
             missing = [c for c in STUDY_COLUMNS[report] if c not in campaign.columns]
             if missing:
-                raise ValueError(f"report {report!r} needs {', '.join(missing)} swept or sampled")
+                raise ValueError(f"report {shown(report)} needs {', '.join(missing)} swept or sampled")
         campaign.runs()  # every run's spec is checked now, before anything starts
         return campaign
 
@@ -193,7 +194,7 @@ class Campaign:
 def _check_keys(where: str, mapping: Mapping) -> None:
     for key in mapping:
         if not isinstance(key, str):
-            raise ValueError(f"{where}: keys must be names (strings), got {key!r}")
+            raise ValueError(f"{where}: keys must be names (strings), got {shown(key)}")
 
 
 def _keys(key: str) -> list[str]:
@@ -218,7 +219,7 @@ def _spec_fields(base: Mapping[str, Any], values: Mapping[str, Any]) -> dict[str
             out["overrides"][key] = value
         else:
             raise ValueError(
-                f"{key!r} is neither a run spec field, gains.NAME, imperfections.NAME nor a rig parameter "
+                f"{shown(key)} is neither a run spec field, gains.NAME, imperfections.NAME nor a rig parameter "
                 "(dotted path, e.g. qzs.guide_friction_n)"
             )
     try:
@@ -232,12 +233,12 @@ def _seeds(value: object) -> tuple[int, ...]:
     if isinstance(value, Mapping):
         unknown = sorted(set(value) - {"first", "count"})
         if unknown or "count" not in value:
-            raise ValueError(f"seeds must be a list or {{first: N, count: M}}, got {dict(value)!r}")
+            raise ValueError(f"seeds must be a list or {{first: N, count: M}}, got {shown(dict(value))}")
         first = validate.integer("seeds.first", value.get("first", 0), 0, 2**32 - 1)
         count = validate.integer("seeds.count", value["count"], 1, MAX_RUNS)
         return tuple(range(first, first + count))
     if not isinstance(value, list) or not value:
-        raise ValueError(f"seeds must be a non-empty list or {{first: N, count: M}}, got {value!r}")
+        raise ValueError(f"seeds must be a non-empty list or {{first: N, count: M}}, got {shown(value)}")
     seeds = tuple(validate.integer("seeds item", s, 0, 2**32 - 1) for s in value)
     if len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds repeat a seed: {list(seeds)}")
@@ -248,34 +249,37 @@ def _check_samples(samples: object) -> None:
     validate.instance("samples", samples, Mapping)
     unknown = sorted(set(samples) - {"count", "seed", "draw"})
     if unknown:
-        raise ValueError(f"samples: unknown key {unknown[0]!r}; known: count, seed, draw")
+        raise ValueError(f"samples: unknown key {shown(unknown[0])}; known: count, seed, draw")
     validate.integer("samples.count", samples.get("count"), 1, MAX_RUNS)
     validate.integer("samples.seed", samples.get("seed", 0), 0, 2**32 - 1)
     draw = samples.get("draw")
     if not isinstance(draw, Mapping) or not draw:
-        raise ValueError(f"samples.draw must map keys to distributions, got {draw!r}")
+        raise ValueError(f"samples.draw must map keys to distributions, got {shown(draw)}")
     _check_keys("samples.draw", draw)
     for key, distribution in draw.items():
         if not isinstance(distribution, Mapping) or len(distribution) != 1:
             raise ValueError(
-                f"samples.draw.{key} must be one of {{uniform|loguniform|normal|choice: [...]}}, got {distribution!r}"
+                f"samples.draw.{key} must be one of {{uniform|loguniform|normal|choice: [...]}}, "
+                f"got {shown(distribution)}"
             )
         ((kind, args),) = distribution.items()
         if kind not in DISTRIBUTIONS:
-            raise ValueError(f"samples.draw.{key}: unknown distribution {kind!r}; known: {', '.join(DISTRIBUTIONS)}")
+            raise ValueError(
+                f"samples.draw.{key}: unknown distribution {shown(kind)}; known: {', '.join(DISTRIBUTIONS)}"
+            )
         if kind == "choice":
             if not isinstance(args, list) or not args:
-                raise ValueError(f"samples.draw.{key}.choice must be a non-empty list, got {args!r}")
+                raise ValueError(f"samples.draw.{key}.choice must be a non-empty list, got {shown(args)}")
             continue
         if not (isinstance(args, list) and len(args) == 2):
-            raise ValueError(f"samples.draw.{key}.{kind} must be {DISTRIBUTIONS[kind]}, got {args!r}")
+            raise ValueError(f"samples.draw.{key}.{kind} must be {DISTRIBUTIONS[kind]}, got {shown(args)}")
         a, b = (validate.finite(f"samples.draw.{key}.{kind}", v) for v in args)
         if (
             (kind in ("uniform", "loguniform") and not a < b)
             or (kind == "loguniform" and a <= 0)
             or (kind == "normal" and b <= 0)
         ):
-            raise ValueError(f"samples.draw.{key}.{kind} must be {DISTRIBUTIONS[kind]} (low < high), got {args!r}")
+            raise ValueError(f"samples.draw.{key}.{kind} must be {DISTRIBUTIONS[kind]} (low < high), got {shown(args)}")
 
 
 def _draws(samples: Mapping[str, Any]) -> list[dict[str, Any]]:

@@ -27,6 +27,7 @@ from microg_env.imperfections import IMPERFECTION_NAMES, DomainRandomization, Im
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides
 from microg_env.scenarios import LoadStep, Scenario, comparison_scenarios
 from microg_env.sim.model import check_physics_step
+from microg_env.validate import shown
 
 #: The controller that :mod:`microg_env.experiments.tuning` re-tunes on each spec's rig and period.
 RETUNED_PID = "pid-retuned"
@@ -67,7 +68,7 @@ class RunSpec:
     def __post_init__(self) -> None:
         known = comparison_scenarios()
         if self.scenario not in known:
-            raise ValueError(f"RunSpec.scenario must be one of {', '.join(known)}, got {self.scenario!r}")
+            raise ValueError(f"RunSpec.scenario must be one of {', '.join(known)}, got {shown(self.scenario)}")
         validate.instance("RunSpec.controller", self.controller, str)
         validate.choice("RunSpec.sensor_set", self.sensor_set, tuple(SENSOR_SETS))
         if self.controller != RETUNED_PID:
@@ -75,11 +76,11 @@ class RunSpec:
         set_ = object.__setattr__
         set_(self, "seed", validate.integer("RunSpec.seed", self.seed, 0, 2**32 - 1))
         if not isinstance(self.randomize, bool | str) or self.randomize not in RANDOMIZE:
-            raise ValueError(f"RunSpec.randomize must be one of False, True, 'full', got {self.randomize!r}")
+            raise ValueError(f"RunSpec.randomize must be one of False, True, 'full', got {shown(self.randomize)}")
         set_(self, "overrides", _overrides(self.overrides))
         set_(self, "gains", _named_floats("RunSpec.gains", self.gains, [f.name for f in fields(PIDGains)]))
         if self.gains and self.controller not in (*BASELINES, RETUNED_PID):
-            raise ValueError(f"RunSpec.gains: controller {self.controller!r} has no PID gains to replace")
+            raise ValueError(f"RunSpec.gains: controller {shown(self.controller)} has no PID gains to replace")
         set_(self, "imperfections", _named_flags(self.imperfections, list(IMPERFECTION_NAMES)))
         set_(self, "control_period_us", validate.positive("RunSpec.control_period_us", self.control_period_us, "us"))
         set_(self, "physics_step_us", validate.positive("RunSpec.physics_step_us", self.physics_step_us, "us"))
@@ -114,7 +115,7 @@ class RunSpec:
         names = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - names)
         if unknown:
-            raise ValueError(f"unknown run spec field {unknown[0]!r}; known: {', '.join(sorted(names))}")
+            raise ValueError(f"unknown run spec field {shown(unknown[0])}; known: {', '.join(sorted(names))}")
         values = dict(values)
         if values.get("loads") is not None:
             values["loads"] = tuple(tuple(load) if isinstance(load, list) else load for load in values["loads"])
@@ -189,14 +190,16 @@ def _overrides(values: object) -> dict[str, Any]:
     out = {}
     for path, value in sorted(values.items()):
         if path not in defaults:
-            raise ValueError(f"RunSpec.overrides: unknown parameter {path!r}; known: {', '.join(sorted(defaults))}")
+            raise ValueError(
+                f"RunSpec.overrides: unknown parameter {shown(path)}; known: {', '.join(sorted(defaults))}"
+            )
         kind = type(defaults[path])
         if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
             value = float(value)
         if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-            raise ValueError(f"RunSpec.overrides: {path} must be a {kind.__name__}, got {value!r}")
+            raise ValueError(f"RunSpec.overrides: {path} must be a {kind.__name__}, got {shown(value)}")
         if kind is float and not math.isfinite(value):
-            raise ValueError(f"RunSpec.overrides: {path} must be finite, got {value!r}")
+            raise ValueError(f"RunSpec.overrides: {path} must be finite, got {shown(value)}")
         if value != defaults[path]:
             out[path] = value
     with_overrides(RigParams(), out)  # the parameters' own checks name a bad value now
@@ -208,7 +211,7 @@ def _named_floats(name: str, values: object, known: list[str]) -> dict[str, floa
     out = {}
     for key, value in sorted(values.items()):
         if key not in known:
-            raise ValueError(f"{name}: unknown field {key!r}; known: {', '.join(known)}")
+            raise ValueError(f"{name}: unknown field {shown(key)}; known: {', '.join(known)}")
         out[key] = validate.finite(f"{name}.{key}", value)
     return out
 
@@ -218,7 +221,7 @@ def _named_flags(values: object, known: list[str]) -> dict[str, bool]:
     out = {}
     for key, value in sorted(values.items()):
         if key not in known:
-            raise ValueError(f"RunSpec.imperfections: unknown imperfection {key!r}; known: {', '.join(known)}")
+            raise ValueError(f"RunSpec.imperfections: unknown imperfection {shown(key)}; known: {', '.join(known)}")
         if not validate.instance(f"RunSpec.imperfections.{key}", value, bool):  # on is the default
             out[key] = False
     return out
@@ -226,11 +229,11 @@ def _named_flags(values: object, known: list[str]) -> dict[str, bool]:
 
 def _loads(values: object) -> tuple[tuple[float, float | None], ...]:
     if not isinstance(values, tuple | list) or not values:
-        raise ValueError(f"RunSpec.loads must be a non-empty list of (kg, height m or None), got {values!r}")
+        raise ValueError(f"RunSpec.loads must be a non-empty list of (kg, height m or None), got {shown(values)}")
     out = []
     for load in values:
         if not isinstance(load, tuple | list) or len(load) != 2:
-            raise ValueError(f"RunSpec.loads item must be (kg, height m or None), got {load!r}")
+            raise ValueError(f"RunSpec.loads item must be (kg, height m or None), got {shown(load)}")
         mass = validate.finite("RunSpec.loads kg", load[0])
         height = None if load[1] is None else validate.finite("RunSpec.loads height", load[1])
         out.append((mass, height))

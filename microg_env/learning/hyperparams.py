@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from microg_env.files import data_folder
+from microg_env.files import data_folder, read_settings_text
+from microg_env.validate import shown
 
 #: Algorithms ``microg train`` runs (stable-baselines3's).
 ALGORITHMS = ("ppo", "sac")
@@ -62,7 +63,7 @@ class Hyperparams:
 def packaged_file(algo: str) -> Path:
     """The hyperparameter file shipped for ``algo``."""
     if algo not in ALGORITHMS:
-        raise ValueError(f"--algo must be one of {', '.join(ALGORITHMS)}, got {algo!r}")
+        raise ValueError(f"--algo must be one of {', '.join(ALGORITHMS)}, got {shown(algo)}")
     return data_folder("hyperparams", "training/hyperparams", "ppo.yml") / f"{algo}.yml"
 
 
@@ -71,24 +72,24 @@ def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
     import yaml
 
     path = packaged_file(algo) if path is None else Path(path)
+    text = read_settings_text(path, "hyperparameter file")
     try:
-        table = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise ValueError(f"cannot read hyperparameter file {str(path)!r}: {error.strerror}") from None
+        table = yaml.safe_load(text)
     except yaml.YAMLError as error:
-        raise ValueError(f"hyperparameter file {str(path)!r} is not valid YAML: {_first_line(error)}") from None
+        raise ValueError(f"hyperparameter file {shown(str(path))} is not valid YAML: {_first_line(error)}") from None
     if not isinstance(table, dict) or env_id not in table:
         known = ", ".join(map(str, table)) if isinstance(table, dict) else "none"
-        raise ValueError(f"hyperparameter file {str(path)!r} has no entry {env_id!r} (entries: {known})")
+        raise ValueError(f"hyperparameter file {shown(str(path))} has no entry {shown(env_id)} (entries: {known})")
     if not isinstance(table[env_id], dict):
         raise ValueError(
-            f"hyperparameter file {str(path)!r}: entry {env_id!r} must be a mapping, got {table[env_id]!r}"
+            f"hyperparameter file {shown(str(path))}: entry {shown(env_id)} must be a mapping, "
+            f"got {shown(table[env_id])}"
         )
     entry = dict(table[env_id])
     where = f"{path.name}[{env_id}]"
     for key in UNSUPPORTED_KEYS:
         if key in entry:
-            raise ValueError(f"{where}: {key!r} is not supported by microg train (run python -m rl_zoo3.train)")
+            raise ValueError(f"{where}: {shown(key)} is not supported by microg train (run python -m rl_zoo3.train)")
     algo_kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS}
     if "policy_kwargs" in algo_kwargs:
         algo_kwargs["policy_kwargs"] = _policy_kwargs(algo_kwargs["policy_kwargs"], where)
@@ -118,7 +119,7 @@ def schedule(text: str, where: str):
     except ValueError:
         initial = None
     if kind != "lin" or initial is None:
-        raise ValueError(f"{where}: schedule must be written lin_<value>, got {text!r}")
+        raise ValueError(f"{where}: schedule must be written lin_<value>, got {shown(text)}")
     return lambda progress_remaining: progress_remaining * initial
 
 
@@ -146,7 +147,7 @@ def _positive_int(value: Any, where: str) -> int:
     if isinstance(value, float) and value.is_integer():
         value = int(value)
     if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"{where} must be a positive integer, got {value!r}")
+        raise ValueError(f"{where} must be a positive integer, got {shown(value)}")
     return value
 
 
@@ -161,7 +162,7 @@ def _normalize(value: Any, gamma: Any, where: str) -> dict[str, Any] | None:
     elif isinstance(value, dict):
         kwargs = dict(value)
     else:
-        raise ValueError(f"{where}.normalize must be true, false or VecNormalize's arguments, got {value!r}")
+        raise ValueError(f"{where}.normalize must be true, false or VecNormalize's arguments, got {shown(value)}")
     if gamma is not None:
         kwargs["gamma"] = gamma
     return kwargs
@@ -172,7 +173,7 @@ def _policy_kwargs(value: Any, where: str) -> dict[str, Any]:
         return dict(value)
     if isinstance(value, str):
         return _literal_call(value, f"{where}.policy_kwargs")
-    raise ValueError(f"{where}.policy_kwargs must be a mapping or a dict(...) string, got {value!r}")
+    raise ValueError(f"{where}.policy_kwargs must be a mapping or a dict(...) string, got {shown(value)}")
 
 
 def _literal_call(text: str, where: str) -> dict[str, Any]:
@@ -181,7 +182,7 @@ def _literal_call(text: str, where: str) -> dict[str, Any]:
     try:
         tree = ast.parse(text.strip(), mode="eval").body
     except SyntaxError:
-        raise ValueError(f"{where}: cannot parse {text!r}") from None
+        raise ValueError(f"{where}: cannot parse {shown(text)}") from None
 
     def value(node: ast.AST) -> Any:
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn":
@@ -197,14 +198,14 @@ def _literal_call(text: str, where: str) -> dict[str, Any]:
         try:
             return ast.literal_eval(node)
         except ValueError:
-            raise ValueError(f"{where}: only literal values may appear in {text!r}") from None
+            raise ValueError(f"{where}: only literal values may appear in {shown(text)}") from None
 
     def call(node: ast.Call) -> dict[str, Any]:
         if not (isinstance(node.func, ast.Name) and node.func.id == "dict") or node.args:
-            raise ValueError(f"{where}: only dict(key=value, ...) may appear in {text!r}")
+            raise ValueError(f"{where}: only dict(key=value, ...) may appear in {shown(text)}")
         return {keyword.arg: value(keyword.value) for keyword in node.keywords}
 
     result = value(tree)
     if not isinstance(result, dict):
-        raise ValueError(f"{where}: expected a dict, got {text!r}")
+        raise ValueError(f"{where}: expected a dict, got {shown(text)}")
     return result
