@@ -20,6 +20,8 @@ from pathlib import Path
 
 #: Marker written last into a staging folder: its presence means the folder is complete.
 _COMPLETE = ".complete"
+#: The advisory lock file a process holds in a folder it writes (a run folder, a campaign's).
+LOCK_FILE = ".lock"
 #: Most bytes of a settings file a user gives (a campaign, a hyperparameter file).
 MAX_SETTINGS_BYTES = 2**20
 
@@ -234,3 +236,26 @@ def check_output_folder(out: str | Path, option: str, own_files: Iterable[str], 
                 f"give a new folder, an empty one or an earlier {what.removeprefix('a ').removeprefix('an ')}"
             )
     check_writable(parent, option, text)
+
+
+@contextlib.contextmanager
+def folder_lock(folder: str | Path, what: str) -> Iterator[None]:
+    """Hold an advisory lock on ``folder`` (its :data:`LOCK_FILE`, made with the folder if need be)
+    while the block runs, so that two processes never write one folder at once: the second gets a
+    ValueError naming the folder. The operating system releases the lock with the process, however
+    it ends (a killed process leaves nothing to clean up)."""
+    import fcntl
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    handle = open(folder / LOCK_FILE, "a")  # noqa: SIM115 (held until the block ends)
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.close()
+        raise ValueError(f"{what} {str(folder)!r} is being written by another process; wait for it to end") from None
+    try:
+        yield
+    finally:
+        fcntl.flock(handle, fcntl.LOCK_UN)
+        handle.close()

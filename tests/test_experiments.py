@@ -494,3 +494,15 @@ def test_a_controller_giving_nan_fails_only_its_own_runs(tmp_path, monkeypatch):
 def test_run_all_refuses_what_is_not_a_run_spec():
     with pytest.raises(ValueError, match="run spec must be a RunSpec, got str"):
         run_all(["x"])
+
+
+def test_a_second_process_cannot_run_a_campaign_folder_being_written(tmp_path):
+    """Two drivers on one --out used to both run (the work done twice)."""
+    from microg_env.experiments import distributed
+    from microg_env.files import folder_lock
+
+    path, out = tmp_path / "c.yml", tmp_path / "out"
+    path.write_text("name: locked\nbase: {scenario: condition-2, duration_s: 0.3}\nsweep: {controller: [pid]}\n")
+    with folder_lock(out, "campaign folder"), pytest.raises(ValueError, match="being written by another process"):
+        distributed.execute(Campaign.load(path), out)
+    assert not (out / "campaign.json").exists()  # nothing written by the refused driver

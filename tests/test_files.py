@@ -151,3 +151,17 @@ def test_a_kill_after_the_swap_but_before_the_marker_was_removed(tmp_path):
     (out / ".complete").touch()
     report.check_output(out)  # it used to refuse: "holds files that are not a report (.complete)"
     assert sorted(p.name for p in out.iterdir()) == ["report.md"]
+
+
+def test_a_folder_lock_refuses_a_second_writer_and_goes_with_the_first(tmp_path):
+    from microg_env.files import folder_lock
+
+    folder = tmp_path / "run"
+    with (
+        folder_lock(folder, "run folder"),
+        pytest.raises(ValueError, match=r"run folder '.*run' is being written by another process"),
+        folder_lock(folder, "run folder"),
+    ):
+        pass
+    with folder_lock(folder, "run folder"):  # released: the next writer may go on
+        pass

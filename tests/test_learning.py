@@ -568,3 +568,14 @@ def test_ctrl_c_before_the_first_checkpoint_leaves_no_run_folder(tmp_path, monke
     with pytest.raises(TrainingInterrupted, match="nothing was kept"):
         train(_settings(tmp_path, "ppo", 128))
     assert not list((tmp_path / "logs" / "ppo").iterdir())
+
+
+def test_a_second_process_cannot_resume_a_run_folder_being_written(ppo_run, tmp_path):
+    """Two resumes of one folder used to both proceed (two sessions recorded where three ran)."""
+    from microg_env.files import folder_lock
+
+    folder = ppo_run[0]
+    before = (folder / "args.yml").read_text()
+    with folder_lock(folder, "run folder"), pytest.raises(ValueError, match="being written by another process"):
+        train(_settings(tmp_path, "ppo", 512), resume_folder=folder)
+    assert (folder / "args.yml").read_text() == before  # the refused resume changed nothing

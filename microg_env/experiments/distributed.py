@@ -27,7 +27,7 @@ from microg_env.experiments.campaign import Campaign, Run
 from microg_env.experiments.runner import RunResult, run_many
 from microg_env.experiments.spec import RunSpec
 from microg_env.experiments.store import FAILED, OK, ResultStore, result_row
-from microg_env.files import write_text
+from microg_env.files import folder_lock, write_text
 
 #: Seconds to wait for a cluster's head to answer.
 CONNECT_TIMEOUT_S = 5.0
@@ -99,12 +99,18 @@ def execute(
 ) -> CampaignSummary:
     """Run ``campaign``'s missing runs on Ray and store them in ``folder``; ``on_progress(runs done,
     runs to do)`` as tasks finish. A KeyboardInterrupt stops the tasks still out, keeps every
-    stored row, writes the table of what is stored and re-raises."""
+    stored row, writes the table of what is stored and re-raises. One process at a time writes a
+    folder: a second is refused (ValueError) while the first runs."""
+    folder = Path(folder)
+    check_folder(campaign, folder)
+    with folder_lock(folder, "campaign folder"):
+        return _execute(campaign, folder, address, num_cpus, on_progress)
+
+
+def _execute(campaign, folder, address, num_cpus, on_progress) -> CampaignSummary:
     import ray
 
     start = time.perf_counter()
-    folder = Path(folder)
-    check_folder(campaign, folder)
     store = ResultStore(folder)
     runs = campaign.runs()
     stored = store.statuses()

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from microg_env.controllers.policy import deployed_controller
-from microg_env.files import atomic_path, write_text
+from microg_env.files import atomic_path, folder_lock, write_text
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import write_policy_folder
 
@@ -124,18 +124,25 @@ def train(
     import yaml
 
     torch.set_num_threads(1)  # small networks: one thread is fastest on a shared machine
-    if resume_folder is None:
-        params = resolve(settings)
-        folder = new_run_folder(settings.log_folder, settings.algo, settings.env_id)
-        write_text(folder / "config.yml", yaml.safe_dump({settings.env_id: params.as_config()}, sort_keys=False))
-        write_text(folder / "args.yml", yaml.safe_dump(asdict(settings), sort_keys=False))
-        state = {"timesteps": 0, "wall_s": 0.0, "best_cost": None, "sessions": 0, "resume_commands": []}
-    else:
-        folder, settings, params, state = resumed_run(Path(resume_folder), settings)
-        write_text(folder / "args.yml", yaml.safe_dump(asdict(settings), sort_keys=False))  # the new target
-    run = _Run(folder, settings, params, state, progress, log)
+    if resume_folder is not None and not Path(resume_folder).is_dir():
+        raise ValueError(f"--resume {str(resume_folder)!r}: no such run folder")
+    params = resolve(settings) if resume_folder is None else None
+    folder = (
+        Path(resume_folder) if params is None else new_run_folder(settings.log_folder, settings.algo, settings.env_id)
+    )
     try:
-        return run.learn()
+        with folder_lock(folder, "run folder"):  # one process writes a run folder at a time
+            if params is not None:
+                write_text(
+                    folder / "config.yml", yaml.safe_dump({settings.env_id: params.as_config()}, sort_keys=False)
+                )
+                state = {"timesteps": 0, "wall_s": 0.0, "best_cost": None, "sessions": 0, "resume_commands": []}
+            else:
+                folder, settings, params, state = resumed_run(folder, settings)
+            write_text(
+                folder / "args.yml", yaml.safe_dump(asdict(settings), sort_keys=False)
+            )  # (a resume's new target)
+            return _Run(folder, settings, params, state, progress, log).learn()
     except KeyboardInterrupt:  # before the training loop took it over (building, the base's evaluation)
         if resume_folder is None and not (folder / CHECKPOINTS / LATEST).exists():
             shutil.rmtree(folder, ignore_errors=True)  # nothing to resume: no orphan run folder
