@@ -159,7 +159,6 @@ def _cases():
         yield [*command.split(), "--bogus"], "--bogus"
     yield ["--bogus"], "--bogus"
     yield ["fly"], "fly"
-    yield [], "command"
     # Values that are each fine alone but not together, or not for this rig.
     yield ["run", "--control-period", "150"], "control_period"
     yield ["run", "--height", "600"], "height"
@@ -441,3 +440,11 @@ def test_a_yaml_alias_bomb_gives_a_short_error(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--hyperparams" in err
     assert len(err) < 5000  # a few kB, not 226 MB
+
+
+def test_a_bare_microg_prints_its_help(capsys):
+    """A bare `microg` used to exit 2 with argparse's 'the following arguments are required'."""
+    assert main([]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: microg")
+    assert "reproduce" in out

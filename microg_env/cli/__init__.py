@@ -38,6 +38,9 @@ def _check_top_level(argv: list[str]) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``microg`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv:  # a bare `microg`: what it can do, not an error
+        build_parser().print_help()
+        return 0
     try:
         _check_top_level(argv)
         args = build_parser().parse_args(argv)
