@@ -579,3 +579,46 @@ def test_a_second_process_cannot_resume_a_run_folder_being_written(ppo_run, tmp_
     with folder_lock(folder, "run folder"), pytest.raises(ValueError, match="being written by another process"):
         train(_settings(tmp_path, "ppo", 512), resume_folder=folder)
     assert (folder / "args.yml").read_text() == before  # the refused resume changed nothing
+
+
+def _edit_latest(change):
+    def edit(folder):
+        path = folder / "checkpoints" / "latest.json"
+        state = json.loads(path.read_text())
+        path.write_text(json.dumps(change(state)))
+
+    return edit
+
+
+def _empty_vecnormalize(folder):
+    state = json.loads((folder / "checkpoints" / "latest.json").read_text())
+    (folder / "checkpoints" / state["vecnormalize"]).write_bytes(b"")
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (_edit_latest(lambda s: s | {"model": "../../../etc/passwd"}), "model must name a file in"),
+        (_edit_latest(lambda s: s | {"timesteps": "many"}), "timesteps must be a number"),
+        (_edit_latest(lambda s: [s]), "not a checkpoint record"),
+        (_edit_latest(lambda s: s | {"model": "rl_model_0_steps.zip"}), "missing or empty"),
+        (_empty_vecnormalize, "vecnormalize .* is missing or empty"),
+        (lambda folder: (folder / "checkpoints" / "latest.json").write_text("{garbage"), "cannot read the run"),
+        (lambda folder: (folder / "args.yml").write_text(""), "not a mapping"),
+        (lambda folder: (folder / "args.yml").write_text("algo: ppo\nwings: 2\n"), "unknown keys wings"),
+        (lambda folder: (folder / "args.yml").write_text("algo: dqn\n"), "algo must be one of"),
+    ],
+)
+def test_a_broken_run_folder_is_named_and_left_as_it_was(ppo_run, tmp_path, change, message):
+    """Each used to give a traceback, after the failed resume had rewritten args.yml and opened a
+    monitor file; a path out of the run folder was followed."""
+    import shutil
+
+    folder = tmp_path / "run"
+    shutil.copytree(ppo_run[0], folder)
+    change(folder)
+    before = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+    with pytest.raises(ValueError, match=message):
+        train(_settings(tmp_path, "ppo", 1024), resume_folder=folder)
+    after = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file() and p.name != ".lock"}
+    assert after == {p: b for p, b in before.items() if p.name != ".lock"}

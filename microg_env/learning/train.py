@@ -35,16 +35,17 @@ import platform
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from microg_env.controllers.policy import deployed_controller
-from microg_env.files import atomic_path, folder_lock, write_text
+from microg_env.files import atomic_path, folder_lock, read_settings_text, write_text
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import write_policy_folder
+from microg_env.validate import shown
 
 #: First seed of the validation episodes that choose the best model (training envs are seeded
 #: ``seed`` to ``seed + n_envs - 1``; ``microg compare`` tests on seeds from 1000).
@@ -189,11 +190,12 @@ def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings
     if not latest.is_file():
         raise ValueError(f"--resume {str(folder)!r}: no checkpoint to resume from ({latest} is missing)")
     try:
-        args = yaml.safe_load((folder / "args.yml").read_text(encoding="utf-8"))
-        state = json.loads(latest.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError, json.JSONDecodeError) as error:
-        raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({error})") from None
-    settings = TrainSettings(**args)
+        args = yaml.safe_load(read_settings_text(folder / "args.yml", "run file"))
+        state = json.loads(read_settings_text(latest, "checkpoint record"))
+    except (yaml.YAMLError, json.JSONDecodeError) as error:
+        raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({one_line_error(error)})") from None
+    settings = _check_args(folder / "args.yml", args)
+    _check_state(folder / CHECKPOINTS, state)
     params = hp.load(settings.algo, settings.env_id, folder / "config.yml")
     target = asked.timesteps if asked.timesteps is not None else settings.timesteps  # args.yml keeps the last
     if target is not None:
@@ -207,6 +209,50 @@ def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings
     if asked.command:
         state["resume_commands"] = [*state.get("resume_commands", []), asked.command]
     return folder, settings, params, state
+
+
+def one_line_error(error: BaseException) -> str:
+    """The first line of an error's message."""
+    return (str(error).splitlines() or [""])[0]
+
+
+def _check_args(path: Path, args: object) -> TrainSettings:
+    """The settings an ``args.yml`` records, or a ValueError naming the file and the fault."""
+    names = {f.name for f in fields(TrainSettings)}
+    if not isinstance(args, dict) or not args or set(args) - names:
+        unknown = sorted(map(str, set(args) - names)) if isinstance(args, dict) else []
+        why = f"unknown keys {', '.join(unknown)}" if unknown else "not a mapping of the run's settings"
+        raise ValueError(f"--resume: {str(path)!r}: {why}")
+    try:
+        settings = TrainSettings(**args)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"--resume: {str(path)!r}: {error}") from None
+    if settings.algo not in hp.ALGORITHMS:
+        raise ValueError(
+            f"--resume: {str(path)!r}: algo must be one of {', '.join(hp.ALGORITHMS)}, got {shown(settings.algo)}"
+        )
+    return settings
+
+
+def _check_state(checkpoints: Path, state: object) -> None:
+    """A ``latest.json`` of the right kinds, naming only files inside ``checkpoints`` that exist
+    (a path out of the run folder is never followed); else a ValueError naming it."""
+    where = f"--resume: {str(checkpoints / LATEST)!r}"
+    if not isinstance(state, dict):
+        raise ValueError(f"{where}: not a checkpoint record (a JSON object)")
+    kinds = {"timesteps": int, "sessions": int, "wall_s": (int, float), "model": str}
+    for key, kind in kinds.items():
+        value = state.get(key)
+        if not isinstance(value, kind) or isinstance(value, bool) or (kind is int and value < 0):
+            raise ValueError(f"{where}: {key} must be a {'file name' if kind is str else 'number'}, got {shown(value)}")
+    for key in ("model", "vecnormalize", "replay_buffer"):
+        name = state.get(key)
+        if key != "model" and name is None:
+            continue
+        if not isinstance(name, str) or Path(name).name != name or name in ("", ".", ".."):
+            raise ValueError(f"{where}: {key} must name a file in {str(checkpoints)!r}, got {shown(name)}")
+        if not (checkpoints / name).is_file() or (checkpoints / name).stat().st_size == 0:
+            raise ValueError(f"{where}: its {key} {str(checkpoints / name)!r} is missing or empty")
 
 
 class _Run:
