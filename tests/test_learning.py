@@ -355,6 +355,14 @@ def test_an_interrupted_policy_export_leaves_the_previous_one(tmp_path, monkeypa
     [
         ("  n_timesteps: 1000\n  env_kwargs: {foo: 1}\n", "env_kwargs"),
         ("  n_timesteps: 1000\n  n_stepz: 4\n", "'n_stepz' is not an argument of PPO"),
+        # Each of these was a traceback or a late error that left an orphan run folder.
+        ("  n_timesteps: 1000\n  n_steps: 0\n", "n_steps must be a positive integer"),
+        ("  n_timesteps: 1000\n  device: cuda\n", "'device' is set by microg train"),
+        ("  n_timesteps: 1000\n  seed: 3\n", "'seed' is set by microg train"),
+        ("  n_timesteps: 1000\n  verbose: 1\n", "'verbose' is set by microg train"),
+        ("  n_timesteps: 1000\n  tensorboard_log: /tmp/tb\n", "'tensorboard_log' is set by microg train"),
+        ("  n_timesteps: 1000\n  env_kwargs: {max_episode_steps: 10}\n", "max_episode_steps"),
+        ("  n_timesteps: 1000\n  env_kwargs: [1, 2]\n", "env_kwargs must be a mapping"),
     ],
 )
 def test_entries_the_environment_or_the_algorithm_refuse_are_named_before_a_run_folder(tmp_path, entry, message):
@@ -363,6 +371,13 @@ def test_entries_the_environment_or_the_algorithm_refuse_are_named_before_a_run_
     with pytest.raises(ValueError, match=message):
         resolve(TrainSettings(hyperparams=str(path)))
     assert not (tmp_path / "logs").exists()
+
+
+def test_a_file_asking_for_more_environments_than_a_run_takes_is_refused(tmp_path):
+    path = tmp_path / "bad.yml"
+    path.write_text(f"{ENV_ID}:\n  n_envs: 5000\n  n_timesteps: 1000\n")
+    with pytest.raises(ValueError, match="n_envs must be at most 256, got 5000"):
+        resolve(TrainSettings(hyperparams=str(path)))
 
 
 def test_resume_refuses_what_it_cannot_continue(tmp_path):

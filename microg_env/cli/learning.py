@@ -20,8 +20,8 @@ from microg_env.cli.common import (
     seed_number,
 )
 from microg_env.controllers.registry import CONTROLLER_NAMES
-from microg_env.learning.hyperparams import ALGORITHMS
-from microg_env.learning.train import MAX_ENVS, MAX_EVAL_EPISODES, TrainSettings
+from microg_env.learning.hyperparams import ALGORITHMS, MAX_ENVS
+from microg_env.learning.train import MAX_EVAL_EPISODES, TrainSettings
 
 #: ``microg train``'s options that set a run (``args.yml``), by the TrainSettings field they fill.
 _RUN_FIELDS = {

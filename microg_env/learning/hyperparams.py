@@ -21,6 +21,12 @@ from microg_env.validate import shown
 
 #: Algorithms ``microg train`` runs (stable-baselines3's).
 ALGORITHMS = ("ppo", "sac")
+#: Algorithm arguments microg train sets itself (from its options), refused in a file.
+SET_BY_TRAIN = ("device", "seed", "verbose", "tensorboard_log", "env", "policy")
+#: Algorithm arguments that count something, each a positive integer.
+COUNT_KEYS = ("n_steps", "batch_size", "n_epochs", "buffer_size")
+#: Most environments a run steps (the CLI's --n-envs cap: rigs of one batch).
+MAX_ENVS = 256
 #: The zoo's keys that are not the algorithm's keyword arguments.
 ZOO_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "env_kwargs")
 #: Keys rl-baselines3-zoo reads that ``microg train`` does not (use ``python -m rl_zoo3.train``).
@@ -91,6 +97,20 @@ def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
         if key in entry:
             raise ValueError(f"{where}: {shown(key)} is not supported by microg train (run python -m rl_zoo3.train)")
     algo_kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS}
+    for key in SET_BY_TRAIN:
+        if key in algo_kwargs:
+            raise ValueError(f"{where}: {shown(key)} is set by microg train (use its options), not the file")
+    for key in COUNT_KEYS:
+        if key in algo_kwargs:
+            algo_kwargs[key] = _positive_int(algo_kwargs[key], f"{where}.{key}")
+    env_kwargs = entry.get("env_kwargs") or {}
+    if not isinstance(env_kwargs, dict):
+        raise ValueError(f"{where}.env_kwargs must be a mapping, got {shown(env_kwargs)}")
+    for key in ("max_episode_steps", "render_mode"):
+        if key in env_kwargs:
+            raise ValueError(
+                f"{where}.env_kwargs: {key} is not a setting of the task (its episodes end with the schedule)"
+            )
     if "policy_kwargs" in algo_kwargs:
         algo_kwargs["policy_kwargs"] = _policy_kwargs(algo_kwargs["policy_kwargs"], where)
     if "train_freq" in algo_kwargs and isinstance(algo_kwargs["train_freq"], list):
@@ -101,11 +121,11 @@ def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
     return Hyperparams(
         algo=algo,
         env_id=env_id,
-        n_envs=_positive_int(entry.get("n_envs", 1), f"{where}.n_envs"),
+        n_envs=_bounded_int(entry.get("n_envs", 1), f"{where}.n_envs", MAX_ENVS),
         n_timesteps=_positive_int(entry.get("n_timesteps", 0), f"{where}.n_timesteps"),
         policy=str(entry.get("policy", "MlpPolicy")),
         normalize=_normalize(entry.get("normalize", False), algo_kwargs.get("gamma"), where),
-        env_kwargs=dict(entry.get("env_kwargs") or {}),
+        env_kwargs=dict(env_kwargs),
         algo_kwargs=algo_kwargs,
         source=str(path),
     )
@@ -141,6 +161,13 @@ def algo_arguments(params: Hyperparams) -> dict[str, Any]:
 
 def _first_line(error: Exception) -> str:
     return str(error).strip().splitlines()[0]
+
+
+def _bounded_int(value: Any, where: str, high: int) -> int:
+    value = _positive_int(value, where)
+    if value > high:
+        raise ValueError(f"{where} must be at most {high}, got {value}")
+    return value
 
 
 def _positive_int(value: Any, where: str) -> int:

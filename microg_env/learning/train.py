@@ -60,8 +60,8 @@ class TrainingInterrupted(Exception):
     """Training stopped by the user after saving a checkpoint."""
 
 
-#: Most training environments and validation episodes a run takes.
-MAX_ENVS, MAX_EVAL_EPISODES = 256, 1000
+#: Most validation episodes a run takes.
+MAX_EVAL_EPISODES = 1000
 
 
 @dataclass(frozen=True)
