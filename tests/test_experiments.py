@@ -506,3 +506,20 @@ def test_a_second_process_cannot_run_a_campaign_folder_being_written(tmp_path):
     with folder_lock(out, "campaign folder"), pytest.raises(ValueError, match="being written by another process"):
         distributed.execute(Campaign.load(path), out)
     assert not (out / "campaign.json").exists()  # nothing written by the refused driver
+
+
+def test_a_bracketed_ipv6_address_is_checked_like_any_other():
+    """[::1]:PORT used to be refused as if nothing answered there."""
+    import socket
+
+    from microg_env.experiments.distributed import check_address
+
+    try:
+        listener = socket.create_server(("::1", 0), family=socket.AF_INET6)
+    except OSError:
+        pytest.skip("no IPv6 loopback on this machine")
+    port = listener.getsockname()[1]
+    with listener:
+        check_address(f"[::1]:{port}")  # something answers: no error
+    with pytest.raises(ConnectionError, match="nothing answers"):
+        check_address(f"[::1]:{port}")  # closed now

@@ -218,6 +218,8 @@ def check_address(address: str) -> None:
     does."""
     if address != "auto":
         host, _, port = address.removeprefix("ray://").rpartition(":")
+        if host.startswith("[") and host.endswith("]"):  # an IPv6 address, [::1]:6379
+            host = host[1:-1]
         if not host or not port.isdigit():
             raise ValueError(f"--address {address!r}: give HOST:PORT (the head's GCS port) or 'auto'")
         try:
