@@ -107,12 +107,13 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
             active = is_running[rigs]
             if not active.any():
                 continue
+            live = rigs[active]
             try:
-                actions[rigs[active]] = controller(core.observation[rigs[active]], ids=np.flatnonzero(active))[:, 0]
+                actions[live] = controller(core.observation[live], ids=np.flatnonzero(active))[:, 0]
             except Exception as error:  # this controller's rigs stop here; the others run on
-                _stop(rigs[active], f"controller {name!r} raised {type(error).__name__}: {error}", errors, is_running)
+                _stop(live, f"controller {name!r} raised {type(error).__name__}: {error}", errors, is_running)
                 continue
-            bad = rigs[active][~np.isfinite(actions[rigs[active]])]
+            bad = live[~np.isfinite(actions[live])]
             if bad.size:
                 value = float(actions[bad[0]])
                 _stop(bad, f"controller {name!r} gave a non-finite action ({value!r})", errors, is_running)
@@ -155,7 +156,7 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
 
 
 def _stop(rigs: np.ndarray, error: str, errors: list[str | None], is_running: np.ndarray) -> None:
-    """End rigs ``rigs`` where they are, with ``error`` and the time it came."""
+    """End rigs ``rigs`` where they are, with ``error``."""
     for i in rigs:
         errors[i] = error
     is_running[rigs] = False

@@ -70,6 +70,9 @@ PLANT_FIELDS = (
 )  # fmt: skip
 
 
+GEAR = PLANT_FIELDS.index("gear")
+
+
 def plant_model(params: RigParams) -> np.ndarray:
     """The feed-forward's model of the rig ``params`` (:data:`PLANT_FIELDS`, SI)."""
     screw, servo = params.screw, params.servo
@@ -281,7 +284,7 @@ class AdaptiveFeedforward(Feedforward):
         )  # fmt: skip
         before = self._reference_offset[ids]
         actions = super().act(rows, ids)
-        offsets = (self._reference_offset[ids] - before) / self.nominal[PLANT_FIELDS.index("gear")]  # m
+        offsets = (self._reference_offset[ids] - before) / self.nominal[GEAR]  # m
         advance_reference(ids, actions, offsets, MAX_SPEED_M_S, self.control_period_s, self._reference, self._pending)
         return actions
 

@@ -82,7 +82,7 @@ def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
     try:
         table = yaml.safe_load(text)
     except yaml.YAMLError as error:
-        raise ValueError(f"hyperparameter file {shown(str(path))} is not valid YAML: {_first_line(error)}") from None
+        raise ValueError(f"hyperparameter file {shown(str(path))} is not valid YAML: {first_line(error)}") from None
     if not isinstance(table, dict) or env_id not in table:
         known = ", ".join(map(str, table)) if isinstance(table, dict) else "none"
         raise ValueError(f"hyperparameter file {shown(str(path))} has no entry {shown(env_id)} (entries: {known})")
@@ -159,7 +159,8 @@ def algo_arguments(params: Hyperparams) -> dict[str, Any]:
     return kwargs
 
 
-def _first_line(error: Exception) -> str:
+def first_line(error: Exception) -> str:
+    """The first line of an error's message."""
     return str(error).strip().splitlines()[0]
 
 

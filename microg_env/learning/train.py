@@ -42,9 +42,11 @@ from typing import Any
 import numpy as np
 
 from microg_env.controllers.policy import deployed_controller
+from microg_env.controllers.registry import make_controller
 from microg_env.files import atomic_path, folder_lock, read_settings_text, write_text
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import write_policy_folder
+from microg_env.params import CONTROL_PERIOD_S
 from microg_env.validate import shown
 
 #: First seed of the validation episodes that choose the best model (training envs are seeded
@@ -193,7 +195,7 @@ def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings
         args = yaml.safe_load(read_settings_text(folder / "args.yml", "run file"))
         state = json.loads(read_settings_text(latest, "checkpoint record"))
     except (yaml.YAMLError, json.JSONDecodeError) as error:
-        raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({one_line_error(error)})") from None
+        raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({hp.first_line(error)})") from None
     settings = _check_args(folder / "args.yml", args)
     _check_state(folder / CHECKPOINTS, state)
     params = hp.load(settings.algo, settings.env_id, folder / "config.yml")
@@ -209,11 +211,6 @@ def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings
     if asked.command:
         state["resume_commands"] = [*state.get("resume_commands", []), asked.command]
     return folder, settings, params, state
-
-
-def one_line_error(error: BaseException) -> str:
-    """The first line of an error's message."""
-    return (str(error).splitlines() or [""])[0]
 
 
 def _check_args(path: Path, args: object) -> TrainSettings:
@@ -416,12 +413,11 @@ class _Run:
         if previous_buffer and previous_buffer != files.get("replay_buffer"):
             (folder / previous_buffer).unlink(missing_ok=True)  # one replay buffer is enough (and large)
 
-    def validate(self, policy) -> tuple[list, float, float]:
-        """The runs, failure rate and cost of ``policy`` deployed on the validation schedules."""
+    def validate(self, controller) -> tuple[list, float, float]:
+        """The runs, failure rate and cost of ``controller`` on the validation schedules."""
         from microg_env.analysis.evaluate import control_cost, evaluate
 
         env_kwargs = self.params.env_kwargs
-        controller = deployed_controller(policy, env_kwargs)
         seeds = range(VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes)
         runs, failure_rate = evaluate(lambda: _speed_env(self.params.env_id, env_kwargs), controller, seeds)
         return runs, failure_rate, control_cost(runs)
@@ -431,9 +427,10 @@ class _Run:
         validation schedules, once per run, logged and kept in ``latest.json``."""
         if self.params.env_kwargs.get("action_mode") != "residual" or "base_cost" in self.state:
             return
-        *_, cost = self.validate(_ZeroPolicy())
-        self.state["base_cost"] = _json_number(cost)
         base = self.params.env_kwargs.get("base_controller", "pid")
+        period = float(self.params.env_kwargs.get("control_period_s", CONTROL_PERIOD_S))
+        *_, cost = self.validate(make_controller(base, period))  # what a zero residual leaves it
+        self.state["base_cost"] = _json_number(cost)
         self.log(f"the base controller alone ({base}, a zero residual): cost {_show(cost, '.4g')}, the line to beat")
 
     def evaluate(self, model) -> None:
@@ -441,7 +438,8 @@ class _Run:
         from microg_env.analysis.evaluate import finite_mean
 
         normalization = model.get_vec_normalize_env()
-        runs, failure_rate, cost = self.validate(_NormalizedPolicy(model, normalization))
+        policy = _NormalizedPolicy(model, normalization)
+        runs, failure_rate, cost = self.validate(deployed_controller(policy, self.params.env_kwargs))
         row = {
             "timesteps": model.num_timesteps,
             "wall_s": round(self.wall_s(), 1),
@@ -537,13 +535,6 @@ def _callback(run: _Run):
 
 def _next_multiple(steps: int, every: int) -> int:
     return (steps // every + 1) * every
-
-
-class _ZeroPolicy:
-    """The residual policy that leaves its base controller alone."""
-
-    def predict(self, observation: np.ndarray, deterministic: bool = True):
-        return np.zeros((len(observation), 1), dtype=np.float32), None
 
 
 class _NormalizedPolicy:
