@@ -15,6 +15,8 @@ from microg_env.sim.drop import drop_test, static_sink
 from microg_env.sim.model import PadTest, Rig, build_pad_test, build_rig
 
 __version__ = "0.3.0"
+#: The mean return of `adaptive` on MicroGravityLanding-Residual-v1's own draws (training/returns_table.py).
+REWARD_THRESHOLD = 760.0
 
 if "MicroGravityLanding-v1" not in registry:
     # No max_episode_steps: the environment truncates itself at its scenario's duration, whatever
@@ -23,6 +25,25 @@ if "MicroGravityLanding-v1" not in registry:
         id="MicroGravityLanding-v1",
         entry_point="microg_env.envs.landing:MicroGravityLandingEnv",
         vector_entry_point="microg_env.envs.vector:MicroGravityLandingVectorEnv",
+    )
+if "MicroGravityLanding-Residual-v1" not in registry:
+    # The learning task: a +-1 um residual x setpoint on the best deployable classical controller
+    # (the adaptive feed-forward), held 5 control periods, on drawn training schedules and drawn
+    # plants and drives, so a zero action is the line to beat. reward_threshold: that zero
+    # residual's mean return on these draws (training/returns_table.py).
+    register(
+        id="MicroGravityLanding-Residual-v1",
+        entry_point="microg_env.envs.landing:MicroGravityLandingEnv",
+        vector_entry_point="microg_env.envs.vector:MicroGravityLandingVectorEnv",
+        kwargs={
+            "action_mode": "residual",
+            "base_controller": "adaptive",
+            "decision_period": 5,
+            "residual_limit_m": 1e-6,
+            "scenario_sampler": "training",
+            "domain_randomization": "full",
+        },
+        reward_threshold=REWARD_THRESHOLD,
     )
 
 __all__ = [

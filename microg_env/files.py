@@ -11,12 +11,16 @@ usual permissions (0666 less the umask), not those of a private temporary file.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import shutil
 import stat
 import tempfile
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Hashable, Iterable, Iterator
 from pathlib import Path
+from typing import Any
+
+from microg_env.validate import shown
 
 #: Marker written last into a staging folder: its presence means the folder is complete.
 _COMPLETE = ".complete"
@@ -46,6 +50,52 @@ def read_settings_text(path: str | Path, what: str) -> str:
             return stream.read(MAX_SETTINGS_BYTES + 1)[:MAX_SETTINGS_BYTES]
     except (OSError, UnicodeDecodeError) as error:
         raise ValueError(f"{what} {str(path)!r} cannot be read: {error}") from None
+
+
+#: YAML 1.2's floats, added to PyYAML's YAML 1.1 ones, which read an exponent without a point
+#: (``5e-9``) as text.
+_YAML12_FLOAT = r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"
+
+
+def read_yaml(path: str | Path, what: str) -> Any:
+    """The data of the YAML file ``path`` (read as :func:`read_settings_text` reads), parsed
+    strictly: a key given twice in one mapping is refused (YAML loaders keep the last silently) and
+    ``5e-9`` is a number, as in YAML 1.2. A ValueError names ``what``, the file and the fault."""
+    import yaml
+
+    text = read_settings_text(path, what)
+    try:
+        return yaml.load(text, Loader=_strict_yaml_loader())  # a SafeLoader
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        fault = str(error).strip().splitlines()[0] if mark is None else f"{error.problem} (line {mark.line + 1})"
+        raise ValueError(f"{what} {shown(str(path))} is not valid YAML: {fault}") from None
+
+
+@functools.cache
+def _strict_yaml_loader() -> type:
+    import re
+
+    import yaml
+
+    class StrictLoader(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":  # "<<: *anchor" may be overridden
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                if not isinstance(key, Hashable):
+                    continue  # refused by the mapping itself
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"key {shown(key)} is given twice", key_node.start_mark
+                    )
+                seen.add(key)
+            return super().construct_mapping(node, deep)
+
+    StrictLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(_YAML12_FLOAT), list("-+0123456789"))
+    return StrictLoader
 
 
 def _umask() -> int:

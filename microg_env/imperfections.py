@@ -74,6 +74,10 @@ def apply_imperfections(params: RigParams, imperfections: Imperfections) -> RigP
     return replace(params, servo=servo, screw=screw, qzs=qzs)
 
 
+#: How much wider than :meth:`DomainRandomization.full` held-out test plants are drawn.
+WIDER = 1.5
+
+
 @dataclass(frozen=True)
 class DomainRandomization:
     """Half-widths of uniform relative perturbations drawn at every reset (0 turns one off).
@@ -114,6 +118,13 @@ class DomainRandomization:
         +-50 % (LuGre parameters identified on one rig scatter by that much), the speed loop's gain
         +-20 % (it is set against an estimated inertia) and the torque filter +-30 %."""
         return cls(cogging=0.5, cogging_phase=1.0, lugre=0.5, speed_loop=0.2, torque_filter=0.3)
+
+    @classmethod
+    def wider(cls) -> DomainRandomization:
+        """Test plants from a wider range than training draws: every half-width of :meth:`full`
+        times :data:`WIDER` (the cogging's phase is drawn anywhere already)."""
+        full = cls.full()
+        return cls(**{f.name: getattr(full, f.name) * WIDER for f in fields(cls)} | {"cogging_phase": 1.0})
 
     def _lander_range(self, params: RigParams) -> tuple[float, float]:
         mass = params.lander.mass_kg

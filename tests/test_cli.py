@@ -2,6 +2,7 @@
 
 import io
 import json
+import math
 import os
 import subprocess
 import sys
@@ -11,6 +12,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+import yaml
 
 from microg_env import cli
 from microg_env.cli import main
@@ -448,3 +450,161 @@ def test_a_bare_microg_prints_its_help(capsys):
     out = capsys.readouterr().out
     assert out.startswith("usage: microg")
     assert "reproduce" in out
+
+
+# -- generated bad files: -conf entries, campaign files, policy folders, --resume folders ----------
+
+#: Values no setting takes, put in place of one key's value at a time.
+BAD_VALUES = ["0", "-1", "1.5", "'text'", "null", "[1, 2]", "{a: 1}", ".nan", "1e400", "true"]
+CONF_KEYS = ["n_envs", "n_timesteps", "n_steps", "batch_size", "n_epochs", "learning_rate", "gamma", "clip_range"]
+CONF_KEYS += ["policy_kwargs", "normalize", "env_kwargs", "policy"]
+CAMPAIGN = {
+    "name": "fuzz",
+    "base": {"scenario": "condition-2", "controller": "pid", "duration_s": 0.3},
+    "sweep": {"overrides.pad.stiffness_n_per_m": [8000.0]},
+    "seeds": [0, 1],
+    "batch_size": 4,
+}
+
+
+def _conf_cases():
+    entry = yaml.safe_load((REPO / "training" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
+    for key in CONF_KEYS:
+        for value in BAD_VALUES:
+            if (key, value) in {("normalize", "true"), ("normalize", "null"), ("env_kwargs", "null")}:
+                continue  # good values: normalise; no keyword arguments
+            if (key, value) in {("gamma", "0"), ("clip_range", "1.5"), ("learning_rate", "1.5")}:
+                continue  # accepted by the algorithm (gamma 0: myopic; the others are numbers)
+            yield f"conf {key}={value}", {**entry, key: yaml.safe_load(value)}
+    for key, value in [("condition", 9), ("action_mode", "jump"), ("base_controller", "me"), ("decision_period", 0)]:
+        yield f"conf env_kwargs.{key}={value}", {**entry, "env_kwargs": {**entry["env_kwargs"], key: value}}
+
+
+def _campaign_cases():
+    for key in ("name", "base", "sweep", "seeds", "batch_size", "samples"):
+        for value in BAD_VALUES:
+            if (key, value) in {("seeds", "0"), ("seeds", "[1, 2]"), ("name", "'text'"), ("samples", "null")}:
+                continue  # good values: seed 0; seeds 1 and 2; a name; no samples
+            if (key, value) in {("sweep", "null"), ("base", "null")}:
+                continue  # nothing swept; no base settings
+            yield f"campaign {key}={value}", {**CAMPAIGN, key: yaml.safe_load(value)}
+    for key in ("duration_s", "controller", "scenario", "physics_step_us", "randomize", "overrides"):
+        for value in BAD_VALUES[:6]:
+            if (key, value) in {("randomize", "true"), ("duration_s", "1.5"), ("duration_s", "null")}:
+                continue  # good values: plants drawn; a 1.5 s run; the whole schedule
+            yield f"campaign base.{key}={value}", {**CAMPAIGN, "base": {**CAMPAIGN["base"], key: yaml.safe_load(value)}}
+
+
+@pytest.mark.parametrize(("case", "entry"), list(_conf_cases()), ids=lambda v: v if isinstance(v, str) else "")
+def test_a_generated_bad_hyperparameter_entry_is_one_line_naming_the_file(case, entry, tmp_path, capsys):
+    path = tmp_path / "ppo.yml"
+    path.write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
+    logs = tmp_path / "logs"
+    code = main(["train", "-conf", str(path), "--timesteps", "64", "--log-folder", str(logs), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1, err
+    assert "ppo.yml" in err or "-conf" in err, err
+    assert not logs.exists()  # no run folder, no run number used up
+
+
+@pytest.mark.parametrize(("case", "data"), list(_campaign_cases()), ids=lambda v: v if isinstance(v, str) else "")
+def test_a_generated_bad_campaign_file_is_one_line_naming_the_file(case, data, tmp_path, capsys):
+    path, out = tmp_path / "c.yml", tmp_path / "out"
+    path.write_text(yaml.safe_dump(data))
+    code = main(["campaign", str(path), "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1, err
+    assert "c.yml" in err, err
+    assert not out.exists()
+
+
+def _policy_cases():
+    card = json.loads((REPO / "microg_env" / "policies" / "residual-ppo" / "policy.json").read_text())
+    for key in ("action_mode", "base_controller", "decision_period", "residual_limit_m", "control_period_s"):
+        for value in BAD_VALUES:
+            if (key, value) in {("decision_period", "1.5"), ("residual_limit_m", "1.5")}:
+                continue
+            bad = json.loads(json.dumps(card))
+            bad["env_kwargs"][key] = yaml.safe_load(value)
+            if isinstance(bad["env_kwargs"][key], float) and not math.isfinite(bad["env_kwargs"][key]):
+                text = json.dumps(bad)  # NaN and Infinity: what Python's json writes for them
+            else:
+                text = json.dumps(bad, allow_nan=False)
+            yield f"policy env_kwargs.{key}={value}", text
+    for value in BAD_VALUES:
+        if value != "{a: 1}":  # a mapping: deployment reads its five keys, each defaulted when absent
+            yield f"policy env_kwargs={value}", json.dumps({**card, "env_kwargs": yaml.safe_load(value)})
+
+
+@pytest.mark.parametrize(("case", "text"), list(_policy_cases()), ids=lambda v: v if v.startswith("policy") else "")
+def test_a_generated_bad_policy_card_is_one_line_naming_the_policy(case, text, tmp_path, capsys):
+    import shutil
+
+    folder = tmp_path / "policy"
+    shutil.copytree(REPO / "microg_env" / "policies" / "residual-ppo", folder)
+    (folder / "policy.json").write_text(text)
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    code = main(["run", "--controller", str(folder), "--duration", "0.01", "--json"])
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert code == 2, err + captured.out[:200]
+    assert len(err.splitlines()) == 1, err
+    assert "policy" in err.lower(), err
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+@pytest.fixture(scope="module")
+def run_folder(tmp_path_factory):
+    """A finished 128-step PPO run folder to damage (copies of it)."""
+    tmp_path = tmp_path_factory.mktemp("run")
+    entry = yaml.safe_load((REPO / "training" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
+    entry |= {"n_envs": 2, "n_steps": 64, "batch_size": 64, "n_epochs": 1, "policy_kwargs": "dict(net_arch=[8])"}
+    (tmp_path / "ppo.yml").write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
+    args = ["train", "-conf", str(tmp_path / "ppo.yml"), "--timesteps", "128", "--eval-freq", "128"]
+    args += ["--eval-episodes", "1", "--checkpoint-freq", "128", "--log-folder", str(tmp_path / "logs"), "--quiet"]
+    assert main(args) == 0
+    return next((tmp_path / "logs" / "ppo").iterdir())
+
+
+def _resume_cases():
+    for key in ("algo", "env_id", "seed", "timesteps", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq"):
+        for value in BAD_VALUES:
+            if (key, value) in {("seed", "0"), ("timesteps", "null"), ("n_envs", "null")}:
+                continue  # good values: seed 0; the file's budget; the file's environments
+            yield f"args.yml {key}={value}", "args.yml", key, value
+    for key in ("timesteps", "best_cost", "base_cost", "finished", "sessions", "resume_commands", "model"):
+        for value in BAD_VALUES:
+            if (key, value) in {("best_cost", "0"), ("best_cost", "1.5"), ("best_cost", "null"), ("finished", "true")}:
+                continue  # good values: costs, not evaluated yet, a finished run
+            if (key, value) in {("base_cost", "0"), ("base_cost", "1.5"), ("base_cost", "null"), ("sessions", "0")}:
+                continue
+            yield f"latest.json {key}={value}", "checkpoints/latest.json", key, value
+
+
+def _read_tree(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize(("case", "name", "key", "value"), list(_resume_cases()), ids=lambda v: v if " " in v else "")
+def test_a_generated_bad_run_folder_is_one_line_naming_its_file_and_is_left_unchanged(
+    case, name, key, value, run_folder, tmp_path, capsys
+):
+    import shutil
+
+    folder = tmp_path / "run"
+    shutil.copytree(run_folder, folder)
+    path = folder / name
+    data = yaml.safe_load(path.read_text()) if name.endswith(".yml") else json.loads(path.read_text())
+    if key not in data:
+        pytest.skip(f"{name} has no {key}")
+    data[key] = yaml.safe_load(value)
+    path.write_text(yaml.safe_dump(data) if name.endswith(".yml") else json.dumps(data))
+    before = _read_tree(folder)
+    code = main(["train", "--resume", str(folder), "--timesteps", "256", "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1, err
+    assert Path(name).name in err or "--resume" in err, err
+    assert _read_tree(folder) == before

@@ -179,3 +179,16 @@ def test_the_shipped_policy_beats_the_pid_fivefold_on_held_out_cases():
         assert learned * 5 <= pid, quantity
     feedforward, learned = (result.summary(c, "collision_excursion_m").mean for c in ("feedforward", "residual-ppo"))
     assert learned <= feedforward
+
+
+def test_cli_compare_runs_held_out_schedules_on_wider_plants(capsys):
+    """--randomize wider on the fastest held-out impact: the plants come from the wider ranges (the
+    JSON says so) and each seed draws its own."""
+    args = ["compare", "--controllers", "pid", "--scenarios", "fast-impact", "--seeds", "2", "--duration", "5"]
+    assert main([*args, "--randomize", "wider", "--json", "--quiet"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["randomize"] == "wider"
+    assert data["scenarios"]["fast-impact"]["descent_height_m"] == 0.09
+    first, second = (c["values"]["collision_excursion_m"] for c in data["cases"])
+    assert math.isfinite(first)
+    assert first != second

@@ -608,3 +608,38 @@ def test_reset_noise_enters_the_pad_check():
     MicroGravityLandingEnv(scenario=scenario, params=soft)
     with pytest.raises(ValueError, match="travel below touchdown"):
         MicroGravityLandingEnv(scenario=scenario, params=soft, reset_noise_scale=0.09)
+
+
+def test_every_test_scenario_lies_outside_the_training_and_validation_draws():
+    """Held out means held out: every comparison scenario starts outside both samplers' starts and
+    differs in at least one more way; together the held-out ones cover impact speed, load and the
+    number of weights. The check itself sees a drawn schedule as inside."""
+    from microg_env.scenarios import CONDITIONS, HELD_OUT, VALIDATION_SAMPLER, ScenarioSampler, comparison_scenarios
+
+    mass, g = RigParams().lander.mass_kg, RigParams().gravity_m_s2
+    spread = DomainRandomization.wider().load_mass
+    covered = set()
+    for sampler in (ScenarioSampler(), VALIDATION_SAMPLER):
+        for name, scenario in comparison_scenarios().items():
+            outside = sampler.outside(scenario, mass, g, spread)
+            assert ("start height" in outside and len(outside) >= 2) or name == "condition-3", (name, outside)
+            if name in HELD_OUT:
+                covered |= set(outside)
+        drawn = sampler.sample(np.random.default_rng(0), mass, g)
+        assert sampler.outside(drawn, mass, g) == ()
+    assert ScenarioSampler().outside(CONDITIONS[3], mass, g) == ("start height",)  # 55 mm, two weights like training
+    assert covered == {"impact speed", "load", "start height", "stages"}
+
+
+def test_the_wider_test_plants_draw_every_range_half_again_as_wide():
+    full, wider = DomainRandomization.full(), DomainRandomization.wider()
+    for name in ("lander_mass", "load_mass", "pad_stiffness", "friction", "cogging", "lugre", "speed_loop"):
+        assert getattr(wider, name) == pytest.approx(1.5 * getattr(full, name))
+    assert wider.cogging_phase == 1.0
+    env = MicroGravityLandingEnv(condition=2, domain_randomization="wider")  # as a YAML file or a RunSpec names it
+    assert env.domain_randomization == wider
+    stiffness = []
+    for seed in range(40):
+        env.reset(seed=seed)
+        stiffness.append(env.params.pad.stiffness_n_per_m / RigParams().pad.stiffness_n_per_m)
+    assert max(abs(s - 1.0) for s in stiffness) > full.pad_stiffness  # beyond any training draw

@@ -47,6 +47,7 @@ def test_spec_hash_is_content_only_and_stable_across_processes():
         spec.replace(imperfections={"friction": False}),
         spec.replace(randomize=True),
         spec.replace(randomize="full"),
+        spec.replace(randomize="wider"),
         spec.replace(sensor_set="paper"),
         spec.replace(control_period_us=500),
         spec.replace(physics_step_us=50),
@@ -508,6 +509,23 @@ def test_a_second_process_cannot_run_a_campaign_folder_being_written(tmp_path):
     assert not (out / "campaign.json").exists()  # nothing written by the refused driver
 
 
+def _serve_once(listener, reply: bytes) -> None:
+    """Answer the next connection to ``listener`` with ``reply`` (in a thread)."""
+    import threading
+
+    def answer():
+        connection, _ = listener.accept()
+        with connection:
+            connection.recv(64)
+            connection.sendall(reply)
+
+    threading.Thread(target=answer, daemon=True).start()
+
+
+#: What a gRPC server (a Ray head's GCS) sends first: an HTTP/2 SETTINGS frame's header.
+GRPC_SETTINGS = bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+
+
 def test_a_bracketed_ipv6_address_is_checked_like_any_other():
     """[::1]:PORT used to be refused as if nothing answered there."""
     import socket
@@ -520,6 +538,88 @@ def test_a_bracketed_ipv6_address_is_checked_like_any_other():
         pytest.skip("no IPv6 loopback on this machine")
     port = listener.getsockname()[1]
     with listener:
-        check_address(f"[::1]:{port}")  # something answers: no error
+        _serve_once(listener, GRPC_SETTINGS)
+        check_address(f"[::1]:{port}")  # a gRPC server answers: no error
     with pytest.raises(ConnectionError, match="nothing answers"):
         check_address(f"[::1]:{port}")  # closed now
+
+
+@pytest.mark.parametrize("reply", [b"SSH-2.0-OpenSSH_9.6\r\n", b"HTTP/1.1 400 Bad Request\r\n\r\n", None])
+def test_campaign_address_of_a_service_that_is_not_ray_exits_2_in_seconds(tmp_path, reply):
+    """Another service at --address (one that answers otherwise, or says nothing) used to hang the
+    campaign in Ray's retries for minutes; nothing is written."""
+    import socket
+
+    path, out = tmp_path / "c.yml", tmp_path / "o"
+    path.write_text("name: t\nbase: {scenario: condition-2, duration_s: 0.1}\n")
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        if reply is not None:
+            _serve_once(listener, reply)
+        address = f"127.0.0.1:{listener.getsockname()[1]}"
+        start = time.perf_counter()
+        done = subprocess.run(
+            [*MICROG, "campaign", str(path), "--out", str(out), "--address", address],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    assert done.returncode == 2
+    assert "not a Ray cluster" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+    assert time.perf_counter() - start < 60  # the connection's 5 s timeout plus the start-up, not minutes
+    assert not out.exists()
+
+
+def test_a_campaign_whose_cluster_does_not_start_writes_nothing(tmp_path, monkeypatch):
+    """campaign.json used to be written into --out before Ray had answered."""
+    import ray
+
+    from microg_env.experiments import distributed
+
+    def refuse(**kwargs):
+        raise ConnectionError("no Ray cluster here")
+
+    monkeypatch.setattr(ray, "init", refuse)
+    path, out = tmp_path / "c.yml", tmp_path / "out"
+    path.write_text("name: unstarted\nbase: {scenario: condition-2, duration_s: 0.3}\nsweep: {controller: [pid]}\n")
+    with pytest.raises(ConnectionError, match="no Ray cluster"):
+        distributed.execute(Campaign.load(path), out)
+    assert not out.exists()
+
+
+def test_a_damaged_part_file_is_named_with_what_to_do(tmp_path):
+    """A truncated part, or one whose columns clash with the others, used to stop a campaign with a
+    traceback from pyarrow."""
+    import pyarrow as pa
+
+    from microg_env.experiments.store import ResultStore
+
+    store = ResultStore(tmp_path)
+    store.write([{"spec_hash": "a", "status": "ok", "x_m": 1.0}])
+    bad = store.parts / "part-bad.parquet"
+    for content in (b"PAR1 cut short", {"spec_hash": ["b"], "status": ["ok"], "x_m": ["text"]}, {"spec_hash": [7]}):
+        if isinstance(content, bytes):
+            bad.write_bytes(content)
+        else:
+            pq.write_table(pa.table(content), bad)
+        with pytest.raises(ValueError, match=r"part file .*part-bad\.parquet.* move it out of"):
+            store.statuses()
+    bad.unlink()
+    assert store.statuses() == {"a": "ok"}
+
+
+def test_campaign_files_refuse_a_key_given_twice_and_read_exponents_as_numbers(tmp_path):
+    path = tmp_path / "c.yml"
+    path.write_text("name: t\nbase: {scenario: condition-2, duration_s: 0.3}\nsweep: {controller: [pid]}\nname: u\n")
+    with pytest.raises(ValueError, match="key 'name' is given twice"):
+        Campaign.load(path)
+    path.write_text(
+        "name: t\nbase: {scenario: condition-2, duration_s: 0.3}\n"
+        "sweep:\n  overrides.sensors.ruler_noise_m: [5e-9, 1.0e-8]\n  overrides.sensors.ruler_noise_m: [2e-9]\n"
+    )
+    with pytest.raises(ValueError, match="given twice"):
+        Campaign.load(path)
+    path.write_text(
+        "name: t\nbase: {scenario: condition-2, duration_s: 0.3}\nsweep:\n  overrides.sensors.ruler_noise_m: [5e-9]\n"
+    )
+    assert Campaign.load(path).sweep == {"overrides.sensors.ruler_noise_m": [5e-9]}  # YAML 1.1 read "5e-9"

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-import microg_env  # noqa: F401  (registers the environment)
+import microg_env  # registers the environments
 from microg_env.analysis.evaluate import control_cost, run_episode
 from microg_env.controllers import MLPPolicy, PolicyController, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
@@ -561,7 +561,7 @@ def test_the_log_states_the_base_controllers_cost_as_the_line_to_beat(ppo_run):
     folder = ppo_run[0]
     entry = yaml.safe_load((folder / "config.yml").read_text())[ENV_ID]
     base = make_controller(entry["env_kwargs"]["base_controller"], 1e-3)
-    runs, _ = evaluate(lambda: _speed_env(ENV_ID, entry["env_kwargs"]), base, [VALIDATION_SEED])
+    runs, _ = evaluate(lambda: _speed_env(entry["env_kwargs"]), base, [VALIDATION_SEED])
     state = json.loads((folder / "checkpoints" / "latest.json").read_text())
     assert state["base_cost"] == pytest.approx(control_cost(runs), rel=1e-12)
     log = (folder / "train.log").read_text()
@@ -637,3 +637,37 @@ def test_a_broken_run_folder_is_named_and_left_as_it_was(ppo_run, tmp_path, chan
         train(_settings(tmp_path, "ppo", 1024), resume_folder=folder)
     after = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file() and p.name != ".lock"}
     assert after == {p: b for p, b in before.items() if p.name != ".lock"}
+
+
+# -- the registered learning task ----------------------------------------------------------------
+
+RESIDUAL_ID = "MicroGravityLanding-Residual-v1"
+
+
+def test_the_residual_task_is_registered_with_its_defaults_and_passes_check_env():
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    spec = gym.spec(RESIDUAL_ID)
+    assert spec.kwargs == RESIDUAL | {
+        "base_controller": "adaptive",
+        "residual_limit_m": 1e-6,
+        "scenario_sampler": "training",
+        "domain_randomization": "full",
+    }
+    assert spec.reward_threshold == microg_env.REWARD_THRESHOLD > 0
+    check_env(gym.make(RESIDUAL_ID).unwrapped, skip_render_check=True)
+    # a run's settings are the id's defaults updated by the file's entry: the card says the whole task
+    assert hp.load("ppo", RESIDUAL_ID).env_kwargs == spec.kwargs
+
+
+def test_validation_on_the_residual_task_drives_a_speed_environment():
+    """The validation episodes are a speed environment whatever the id's registered defaults: a
+    residual default coming back would have the controller's speed commands read as x setpoints."""
+    import gymnasium as gym
+
+    from microg_env.learning.train import _speed_env
+
+    env = _speed_env(gym.spec(RESIDUAL_ID).kwargs).unwrapped
+    assert (env.core.action_mode, env.core.decision_period) == ("speed", 1)
+    assert env.domain_randomization == microg_env.DomainRandomization.full()

@@ -2,7 +2,7 @@
 
 Each case (controller, scenario, seed) is one run (:class:`~microg_env.experiments.spec.RunSpec`)
 of ``MicroGravityLanding-v1`` with the speed action, every imperfection on and, with
-``randomize``, the domain randomisation's plant (and with "full" its drive) drawn from the seed,
+``randomize``, the domain randomisation's plant (and with "full" or "wider" its drive) drawn from the seed,
 so every controller meets the same plant, noise and drift. The scenarios are held out of training
 (:func:`microg_env.scenarios.comparison_scenarios`) and the seeds start at :data:`TEST_SEED`,
 above every training and validation seed. The cases run through
@@ -104,7 +104,7 @@ class Comparison:
     controllers: tuple[str, ...]
     scenarios: dict[str, Scenario]
     seeds: tuple[int, ...]
-    randomize: bool | str  # False, True (the plant) or "full" (the plant and the drive)
+    randomize: bool | str  # False, True (the plant), "full" (the plant and the drive) or "wider"
     control_period_s: float
     duration_s: float | None
     results: list[CaseResult] = field(default_factory=list)

@@ -65,6 +65,8 @@ def render_markdown(c: Comparison) -> str:
         True: "randomised plants (lander, pad, friction, weights drawn from each seed)",
         "full": "randomised plants and drives (lander, pad, friction, weights, cogging, motor friction law, "
         "speed loop, torque filter drawn from each seed)",
+        "wider": "randomised plants and drives from ranges 1.5 times wider than training's (lander, pad, friction, "
+        "weights, cogging, motor friction law, speed loop, torque filter drawn from each seed)",
     }[c.randomize]
     lines = [
         "# Controller comparison",

@@ -124,7 +124,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             scenarios,
             seeds=args.seeds,
             first_seed=args.first_seed,
-            randomize={None: False, "plant": True, "full": "full"}[args.randomize],
+            randomize={None: False, "plant": True, "full": "full", "wider": "wider"}[args.randomize],
             duration_s=args.duration,
             reference=args.reference,
             sensor_set=args.sensors,
@@ -221,9 +221,10 @@ def add_commands(commands) -> None:
         "--randomize",
         nargs="?",
         const="plant",
-        choices=("plant", "full"),
-        help="plants drawn from each seed: the lander, pad, friction and weights (plant, the default), or these "
-        "and the drive's cogging, motor friction law, speed loop and torque filter (full)",
+        choices=("plant", "full", "wider"),
+        help="plants drawn from each seed: the lander, pad, friction and weights (plant, the default), these "
+        "and the drive's cogging, motor friction law, speed loop and torque filter (full), or both from ranges "
+        "1.5 times wider than training's (wider)",
     )
     compare.add_argument(
         "--sensors",

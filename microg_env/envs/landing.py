@@ -109,7 +109,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``base_controller`` | ``"pid"`` | the controller a residual action moves the setpoint of |
     | ``residual_limit_m`` | 1e-6 | the setpoint an action of +-1 stands for, m |
     | ``imperfections`` | ``Imperfections()`` | which non-ideal effects are on (or their flags as a dict) |
-    | ``domain_randomization`` | None | a ``DomainRandomization`` (``True``: its defaults; ``"full"``: with the drive) |
+    | ``domain_randomization`` | None | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
     | ``sensor_set`` | ``"extended"`` | ``"paper"``: ruler and encoder only (pad force and accelerometer read 0) |
     | ``params`` | ``RigParams()`` | the rig (the scenario's explicit overrides are applied on top) |
     | ``xml_file`` | None | an MJCF template other than the packaged ``scene.xml`` |

@@ -42,7 +42,7 @@ import numpy as np
 
 from microg_env import validate
 from microg_env.experiments.spec import RunSpec
-from microg_env.files import read_settings_text
+from microg_env.files import read_yaml
 from microg_env.params import parameter_paths
 from microg_env.validate import shown
 
@@ -86,16 +86,8 @@ class Campaign:
     @classmethod
     def load(cls, path: str | Path) -> Campaign:
         """The campaign of a YAML file; a bad file raises ValueError naming the file and the fault."""
-        import yaml
-
         path = Path(path)
-        text = read_settings_text(path, "campaign file")
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as error:
-            raise ValueError(
-                f"campaign file {shown(str(path))} is not valid YAML: {str(error).splitlines()[0]}"
-            ) from None
+        data = read_yaml(path, "campaign file")
         try:
             return cls.from_dict(data)
         except ValueError as error:
@@ -111,7 +103,7 @@ class Campaign:
         name = data.get("name")
         if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
             raise ValueError(f"name must be letters, digits, '.', '_' or '-' (a folder name), got {shown(name)}")
-        base = data.get("base") or {}
+        base = {} if data.get("base") is None else data["base"]
         validate.instance("base", base, Mapping)
         _check_keys("base", base)
         if "seed" in base:
@@ -119,7 +111,7 @@ class Campaign:
         for key in ("overrides", "gains", "imperfections"):
             if key in base and not isinstance(base[key], Mapping):
                 raise ValueError(f"base: {key} must be a mapping, got {shown(base[key])}")
-        sweep = data.get("sweep") or {}
+        sweep = {} if data.get("sweep") is None else data["sweep"]
         validate.instance("sweep", sweep, Mapping)
         _check_keys("sweep", sweep)
         for key, values in sweep.items():

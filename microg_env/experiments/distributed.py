@@ -14,6 +14,7 @@ import contextlib
 import json
 import math
 import os
+import shutil
 import signal
 import socket
 import threading
@@ -27,10 +28,15 @@ from microg_env.experiments.campaign import Campaign, Run
 from microg_env.experiments.runner import RunResult, run_many
 from microg_env.experiments.spec import RunSpec
 from microg_env.experiments.store import FAILED, OK, ResultStore, result_row
-from microg_env.files import folder_lock, write_text
+from microg_env.files import LOCK_FILE, folder_lock, write_text
 
 #: Seconds to wait for a cluster's head to answer.
 CONNECT_TIMEOUT_S = 5.0
+#: An HTTP/2 client's connection preface and an empty SETTINGS frame: a Ray head's GCS (a gRPC
+#: server) answers them with its own SETTINGS frame (RFC 9113, section 3.4); other services do not.
+HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+#: The frame type of HTTP/2's SETTINGS frame, the fourth byte of a frame's header.
+HTTP2_SETTINGS = 4
 #: Seconds between the driver's looks at a Ctrl-C while it waits for tasks.
 WAIT_S = 0.2
 #: The campaign's table, in its folder.
@@ -100,11 +106,18 @@ def execute(
     """Run ``campaign``'s missing runs on Ray and store them in ``folder``; ``on_progress(runs done,
     runs to do)`` as tasks finish. A KeyboardInterrupt stops the tasks still out, keeps every
     stored row, writes the table of what is stored and re-raises. One process at a time writes a
-    folder: a second is refused (ValueError) while the first runs."""
+    folder: a second is refused (ValueError) while the first runs. A start that fails before Ray
+    answers leaves no new folder behind."""
     folder = Path(folder)
     check_folder(campaign, folder)
-    with folder_lock(folder, "campaign folder"):
-        return _execute(campaign, folder, address, num_cpus, on_progress)
+    new = not folder.exists()
+    try:
+        with folder_lock(folder, "campaign folder"):
+            return _execute(campaign, folder, address, num_cpus, on_progress)
+    except BaseException:
+        if new and [p.name for p in folder.iterdir()] == [LOCK_FILE]:
+            shutil.rmtree(folder, ignore_errors=True)  # only the lock was written
+        raise
 
 
 def _execute(campaign, folder, address, num_cpus, on_progress) -> CampaignSummary:
@@ -116,19 +129,18 @@ def _execute(campaign, folder, address, num_cpus, on_progress) -> CampaignSummar
     stored = store.statuses()
     todo = [run for run in runs if stored.get(run.spec.hash) != OK]
     skipped = len(runs) - len(todo)
-    folder.mkdir(parents=True, exist_ok=True)
+    if todo and not ray.is_initialized():  # before anything is written
+        ray.init(
+            address=address,
+            num_cpus=None if address else num_cpus,
+            include_dashboard=False,
+            log_to_driver=False,
+            logging_level="ERROR",
+            configure_logging=True,
+        )
     write_text(folder / CAMPAIGN_COPY, json.dumps(asdict(campaign), indent=2) + "\n")
     done = failed = 0
     if todo:
-        if not ray.is_initialized():
-            ray.init(
-                address=address,
-                num_cpus=None if address else num_cpus,
-                include_dashboard=False,
-                log_to_driver=False,
-                logging_level="ERROR",
-                configure_logging=True,
-            )
         remote = ray.remote(num_cpus=1, max_retries=0)(_run_task)
         pending = {}
         try:
@@ -211,11 +223,11 @@ def check_folder(campaign: Campaign, folder: Path) -> None:
 
 
 def check_address(address: str) -> None:
-    """Before Ray is imported: raise ConnectionError unless something answers at ``address``
-    (HOST:PORT; ``auto`` finds the cluster this machine started), so a wrong address fails in
-    seconds, not after Ray's minutes of retries; and join a cluster that uses token authentication
-    (Ray's default for ``ray start``) with the token Ray keeps in ~/.ray/auth_token, as ``ray start``
-    does."""
+    """Before Ray is imported: raise ConnectionError unless a gRPC server, as a Ray head's GCS is,
+    answers at ``address`` (HOST:PORT; ``auto`` finds the cluster this machine started), so a wrong
+    address or another service there fails in seconds, not after Ray's minutes of retries; and
+    join a cluster that uses token authentication (Ray's default for ``ray start``) with the token
+    Ray keeps in ~/.ray/auth_token, as ``ray start`` does."""
     if address != "auto":
         host, _, port = address.removeprefix("ray://").rpartition(":")
         if host.startswith("[") and host.endswith("]"):  # an IPv6 address, [::1]:6379
@@ -223,9 +235,17 @@ def check_address(address: str) -> None:
         if not host or not port.isdigit():
             raise ValueError(f"--address {address!r}: give HOST:PORT (the head's GCS port) or 'auto'")
         try:
-            socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S).close()
+            connection = socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S)
         except OSError as error:
             raise ConnectionError(f"nothing answers at {address} ({error.strerror or error})") from None
+        with connection:
+            try:
+                connection.sendall(HTTP2_PREFACE)
+                header = connection.recv(9)
+            except OSError:  # a timeout or a reset: no gRPC server
+                header = b""
+        if len(header) < 4 or header[3] != HTTP2_SETTINGS:
+            raise ConnectionError(f"the service at {address} is not a Ray cluster (it does not answer as gRPC does)")
     if "RAY_AUTH_MODE" not in os.environ and (Path.home() / ".ray" / "auth_token").is_file():
         os.environ["RAY_AUTH_MODE"] = "token"
 

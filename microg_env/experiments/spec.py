@@ -31,9 +31,14 @@ from microg_env.validate import shown
 
 #: The controller that :mod:`microg_env.experiments.tuning` re-tunes on each spec's rig and period.
 RETUNED_PID = "pid-retuned"
-#: What ``RunSpec.randomize`` draws: nothing, the plant (lander, pad, friction, weights), or the
-#: plant and the drive.
-RANDOMIZE = {False: None, True: DomainRandomization(), "full": DomainRandomization.full()}
+#: What ``RunSpec.randomize`` draws: nothing, the plant (lander, pad, friction, weights), the
+#: plant and the drive, or both from ranges wider than training's.
+RANDOMIZE = {
+    False: None,
+    True: DomainRandomization(),
+    "full": DomainRandomization.full(),
+    "wider": DomainRandomization.wider(),
+}
 #: Fields added after campaigns were first stored, with their defaults (left out of :meth:`RunSpec.as_dict`
 #: at the default, so the content hash of every spec written before them is unchanged).
 ADDED_FIELDS = {"sensor_set": "extended"}
@@ -57,7 +62,7 @@ class RunSpec:
     overrides: Mapping[str, Any] = field(default_factory=dict)
     gains: Mapping[str, float] = field(default_factory=dict)
     imperfections: Mapping[str, bool] = field(default_factory=dict)
-    randomize: bool | str = False  # True: DomainRandomization(); "full": DomainRandomization.full()
+    randomize: bool | str = False  # True: DomainRandomization(); "full"/"wider": DomainRandomization.full()/.wider()
     control_period_us: float = CONTROL_PERIOD_S * 1e6
     physics_step_us: float = PHYSICS_STEP_S * 1e6
     duration_s: float | None = None
@@ -76,7 +81,9 @@ class RunSpec:
         set_ = object.__setattr__
         set_(self, "seed", validate.integer("RunSpec.seed", self.seed, 0, 2**32 - 1))
         if not isinstance(self.randomize, bool | str) or self.randomize not in RANDOMIZE:
-            raise ValueError(f"RunSpec.randomize must be one of False, True, 'full', got {shown(self.randomize)}")
+            raise ValueError(
+                f"RunSpec.randomize must be one of False, True, 'full', 'wider', got {shown(self.randomize)}"
+            )
         set_(self, "overrides", _overrides(self.overrides))
         set_(self, "gains", _named_floats("RunSpec.gains", self.gains, [f.name for f in fields(PIDGains)]))
         if self.gains and self.controller not in (*BASELINES, RETUNED_PID):

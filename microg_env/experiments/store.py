@@ -52,7 +52,7 @@ def result_row(result: RunResult, columns: Mapping[str, Any]) -> dict[str, Any]:
         "controller": spec.controller,
         "seed": spec.seed,
         "randomize": spec.randomize is not False,  # the plant drawn from the seed
-        "randomize_drive": spec.randomize == "full",  # and the drive
+        "randomize_drive": spec.randomize in ("full", "wider"),  # and the drive (the spec says how wide)
         "sensor_set": spec.sensor_set,
         "control_period_us": spec.control_period_us,
         "physics_step_us": spec.physics_step_us,
@@ -96,8 +96,20 @@ class ResultStore:
         files = sorted(self.parts.glob("part-*.parquet"), key=lambda p: p.stat().st_mtime_ns)
         if not files:
             return pa.table({})
-        tables = [pq.read_table(path) for path in files]
-        table = pa.concat_tables(tables, promote_options="permissive")
+        table = None
+        for path in files:
+            try:
+                part = pq.read_table(path)
+                for name in ("spec_hash", "status"):
+                    if part.schema.field(name).type != pa.string():
+                        raise ValueError(f"its {name} column holds {part.schema.field(name).type}, not strings")
+                table = part if table is None else pa.concat_tables([table, part], promote_options="permissive")
+            except (pa.ArrowException, KeyError, OSError, ValueError) as error:
+                fault = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+                raise ValueError(
+                    f"campaign results: part file {str(path)!r} cannot be read with the others ({fault}); move it "
+                    f"out of {str(self.parts)!r} and run the campaign again (its runs are run again)"
+                ) from None
         rows: dict[str, int] = {}
         statuses = table.column("status").to_pylist()
         for i, spec_hash in enumerate(table.column("spec_hash").to_pylist()):

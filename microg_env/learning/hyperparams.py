@@ -3,7 +3,8 @@
 An entry holds the algorithm's keyword arguments plus the zoo's own keys: ``n_envs``,
 ``n_timesteps``, ``policy``, ``normalize`` (``true``, or VecNormalize's keyword arguments as a
 mapping or its string), ``env_kwargs``, schedules written ``lin_<initial value>``, and
-``policy_kwargs`` as a mapping or the zoo's ``"dict(...)"`` string. Strings are parsed, never
+``policy_kwargs`` as a mapping or the zoo's ``"dict(...)"`` string. A run's ``env_kwargs`` are the
+registered id's defaults updated by the entry's, so a run folder says the whole task. Strings are parsed, never
 evaluated: ``dict(...)`` with literal values and ``nn.<Activation>`` are all they may hold. The
 packaged files are ``training/hyperparams/`` of the source tree, the same files
 ``python -m rl_zoo3.train -conf`` reads.
@@ -12,11 +13,15 @@ packaged files are ``training/hyperparams/`` of the source tree, the same files
 from __future__ import annotations
 
 import ast
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from microg_env.files import data_folder, read_settings_text
+from gymnasium.envs.registration import registry
+
+from microg_env import validate
+from microg_env.files import data_folder, read_yaml
 from microg_env.validate import shown
 
 #: Algorithms ``microg train`` runs (stable-baselines3's).
@@ -40,6 +45,15 @@ UNSUPPORTED_KEYS = (
 )
 #: Schedules the zoo writes as ``lin_<value>``.
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
+#: Algorithm arguments that are numbers, checked before a run starts (the algorithms check few of
+#: them, some only when training reaches them): in [0, 1], positive, at least 0; OFF_KEYS may be
+#: null (off), SCHEDULE_KEYS a schedule.
+UNIT_KEYS = ("gamma", "gae_lambda", "tau")
+POSITIVE_KEYS = ("learning_rate", "clip_range", "clip_range_vf", "target_kl", "max_grad_norm")
+NON_NEGATIVE_KEYS = ("vf_coef",)
+OFF_KEYS = ("clip_range_vf", "target_kl")
+#: The policies an entry may name (the observation is a vector).
+POLICIES = ("MlpPolicy",)
 #: ``nn.<name>`` in a policy_kwargs string.
 ACTIVATION_NAMES = ("Tanh", "ReLU", "ELU", "LeakyReLU", "GELU", "SiLU")
 
@@ -75,14 +89,8 @@ def packaged_file(algo: str) -> Path:
 
 def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
     """The entry for ``env_id`` in ``path`` (default: the packaged ``<algo>.yml``)."""
-    import yaml
-
     path = packaged_file(algo) if path is None else Path(path)
-    text = read_settings_text(path, "hyperparameter file")
-    try:
-        table = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        raise ValueError(f"hyperparameter file {shown(str(path))} is not valid YAML: {first_line(error)}") from None
+    table = read_yaml(path, "hyperparameter file")
     if not isinstance(table, dict) or env_id not in table:
         known = ", ".join(map(str, table)) if isinstance(table, dict) else "none"
         raise ValueError(f"hyperparameter file {shown(str(path))} has no entry {shown(env_id)} (entries: {known})")
@@ -103,7 +111,25 @@ def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
     for key in COUNT_KEYS:
         if key in algo_kwargs:
             algo_kwargs[key] = _positive_int(algo_kwargs[key], f"{where}.{key}")
-    env_kwargs = entry.get("env_kwargs") or {}
+    for key in (*UNIT_KEYS, *POSITIVE_KEYS, *NON_NEGATIVE_KEYS):
+        value = algo_kwargs.get(key)
+        if (
+            key not in algo_kwargs
+            or (value is None and key in OFF_KEYS)
+            or (isinstance(value, str) and key in SCHEDULE_KEYS)
+        ):
+            continue  # absent, off, or a schedule (checked below)
+        name = f"{where}.{key}"
+        if key in UNIT_KEYS:
+            validate.between(name, value, 0.0, 1.0)
+        elif key in POSITIVE_KEYS:
+            validate.positive(name, value)
+        else:
+            validate.at_least(name, value, 0.0)
+    policy = entry.get("policy", POLICIES[0])
+    if policy not in POLICIES:
+        raise ValueError(f"{where}.policy must be one of {', '.join(POLICIES)}, got {shown(policy)}")
+    env_kwargs = {} if entry.get("env_kwargs") is None else entry["env_kwargs"]
     if not isinstance(env_kwargs, dict):
         raise ValueError(f"{where}.env_kwargs must be a mapping, got {shown(env_kwargs)}")
     for key in ("max_episode_steps", "render_mode"):
@@ -123,9 +149,9 @@ def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
         env_id=env_id,
         n_envs=_bounded_int(entry.get("n_envs", 1), f"{where}.n_envs", MAX_ENVS),
         n_timesteps=_positive_int(entry.get("n_timesteps", 0), f"{where}.n_timesteps"),
-        policy=str(entry.get("policy", "MlpPolicy")),
+        policy=policy,
         normalize=_normalize(entry.get("normalize", False), algo_kwargs.get("gamma"), where),
-        env_kwargs=dict(env_kwargs),
+        env_kwargs=dict(registry[env_id].kwargs) | env_kwargs if env_id in registry else dict(env_kwargs),
         algo_kwargs=algo_kwargs,
         source=str(path),
     )
@@ -138,8 +164,8 @@ def schedule(text: str, where: str):
         initial = float(value)
     except ValueError:
         initial = None
-    if kind != "lin" or initial is None:
-        raise ValueError(f"{where}: schedule must be written lin_<value>, got {shown(text)}")
+    if kind != "lin" or initial is None or not 0.0 < initial < math.inf:
+        raise ValueError(f"{where}: schedule must be written lin_<value> with a positive value, got {shown(text)}")
     return lambda progress_remaining: progress_remaining * initial
 
 

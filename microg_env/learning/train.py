@@ -43,7 +43,8 @@ import numpy as np
 
 from microg_env.controllers.policy import deployed_controller
 from microg_env.controllers.registry import make_controller
-from microg_env.files import atomic_path, folder_lock, read_settings_text, write_text
+from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.files import atomic_path, folder_lock, read_settings_text, read_yaml, write_text
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import write_policy_folder
 from microg_env.params import CONTROL_PERIOD_S
@@ -53,7 +54,7 @@ from microg_env.validate import shown
 #: ``seed`` to ``seed + n_envs - 1``; ``microg compare`` tests on seeds from 1000).
 VALIDATION_SEED = 500
 #: The environments ``microg train`` trains on.
-ENV_IDS = ("MicroGravityLanding-v1",)
+ENV_IDS = ("MicroGravityLanding-v1", "MicroGravityLanding-Residual-v1")
 #: Folders and files of a run.
 CHECKPOINTS, LATEST, POLICY, EVALUATIONS, LOG = "checkpoints", "latest.json", "policy", "evaluations.json", "train.log"
 
@@ -64,6 +65,15 @@ class TrainingInterrupted(Exception):
 
 #: Most validation episodes a run takes.
 MAX_EVAL_EPISODES = 1000
+#: The integer settings of a run (``args.yml``) and their ranges.
+SETTING_RANGES = {
+    "seed": (0, 2**32 - 1),
+    "timesteps": (1, 10**12),
+    "n_envs": (1, hp.MAX_ENVS),
+    "eval_freq": (1, 10**12),
+    "eval_episodes": (1, MAX_EVAL_EPISODES),
+    "checkpoint_freq": (1, 10**12),
+}
 
 
 @dataclass(frozen=True)
@@ -182,19 +192,26 @@ def check_entry(params: hp.Hyperparams) -> None:
     unknown = [key for key in params.algo_kwargs if key not in accepted or key in ("env", "policy")]
     if unknown:
         raise ValueError(f"{where}: {', '.join(map(repr, unknown))} is not an argument of {params.algo.upper()}")
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    try:  # the model and its normalisation built once on one environment: what they refuse, they refuse now
+        venv = DummyVecEnv([lambda: gym.make(params.env_id, **params.env_kwargs)])
+        if params.normalize is not None:
+            venv = VecNormalize(venv, **params.normalize)
+        algorithm(params.algo)(params.policy, venv, device="cpu", **hp.algo_arguments(params))
+    except (TypeError, ValueError, AssertionError, KeyError, AttributeError) as error:
+        raise ValueError(f"{where}: {params.algo.upper()} refuses it: {hp.first_line(error)}") from None
 
 
 def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings, hp.Hyperparams, dict[str, Any]]:
     """The run in ``folder`` as it was left, with a new step target if one is asked."""
-    import yaml
-
     latest = folder / CHECKPOINTS / LATEST
     if not latest.is_file():
         raise ValueError(f"--resume {str(folder)!r}: no checkpoint to resume from ({latest} is missing)")
+    args = read_yaml(folder / "args.yml", "run file")
     try:
-        args = yaml.safe_load(read_settings_text(folder / "args.yml", "run file"))
         state = json.loads(read_settings_text(latest, "checkpoint record"))
-    except (yaml.YAMLError, json.JSONDecodeError) as error:
+    except json.JSONDecodeError as error:
         raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({hp.first_line(error)})") from None
     settings = _check_args(folder / "args.yml", args)
     _check_state(folder / CHECKPOINTS, state)
@@ -220,14 +237,22 @@ def _check_args(path: Path, args: object) -> TrainSettings:
         unknown = sorted(map(str, set(args) - names)) if isinstance(args, dict) else []
         why = f"unknown keys {', '.join(unknown)}" if unknown else "not a mapping of the run's settings"
         raise ValueError(f"--resume: {str(path)!r}: {why}")
-    try:
-        settings = TrainSettings(**args)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"--resume: {str(path)!r}: {error}") from None
-    if settings.algo not in hp.ALGORITHMS:
-        raise ValueError(
-            f"--resume: {str(path)!r}: algo must be one of {', '.join(hp.ALGORITHMS)}, got {shown(settings.algo)}"
-        )
+    where = f"--resume: {str(path)!r}"
+    settings = TrainSettings(**args)
+    for name, choices in (("algo", hp.ALGORITHMS), ("env_id", ENV_IDS)):
+        value = getattr(settings, name)
+        if value not in choices:
+            raise ValueError(f"{where}: {name} must be one of {', '.join(choices)}, got {shown(value)}")
+    for name, (low, high) in SETTING_RANGES.items():
+        value = getattr(settings, name)
+        if value is None and name in ("timesteps", "n_envs"):
+            continue  # the hyperparameter file's
+        if type(value) is not int or not low <= value <= high:
+            raise ValueError(f"{where}: {name} must be an integer in [{low}, {high}], got {shown(value)}")
+    for name in ("hyperparams", "log_folder", "command"):
+        value = getattr(settings, name)
+        if not isinstance(value, str) and not (value is None and name == "hyperparams"):
+            raise ValueError(f"{where}: {name} must be text, got {shown(value)}")
     return settings
 
 
@@ -240,8 +265,18 @@ def _check_state(checkpoints: Path, state: object) -> None:
     kinds = {"timesteps": int, "sessions": int, "wall_s": (int, float), "model": str}
     for key, kind in kinds.items():
         value = state.get(key)
-        if not isinstance(value, kind) or isinstance(value, bool) or (kind is int and value < 0):
+        low = 1 if key == "timesteps" else 0  # a checkpoint is written after some steps
+        if not isinstance(value, kind) or isinstance(value, bool) or (kind is int and value < low):
             raise ValueError(f"{where}: {key} must be a {'file name' if kind is str else 'number'}, got {shown(value)}")
+    for key in ("best_cost", "base_cost"):  # null: not evaluated yet
+        value = state.get(key)
+        if value is not None and not (isinstance(value, int | float) and not isinstance(value, bool) and value >= 0):
+            raise ValueError(f"{where}: {key} must be a cost (a number of at least 0) or null, got {shown(value)}")
+    if not isinstance(state.get("finished", True), bool):
+        raise ValueError(f"{where}: finished must be true or false, got {shown(state['finished'])}")
+    commands = state.get("resume_commands", [])
+    if not (isinstance(commands, list) and all(isinstance(c, str) for c in commands)):
+        raise ValueError(f"{where}: resume_commands must be a list of commands, got {shown(commands)}")
     for key in ("model", "vecnormalize", "replay_buffer"):
         name = state.get(key)
         if key != "model" and name is None:
@@ -419,7 +454,7 @@ class _Run:
 
         env_kwargs = self.params.env_kwargs
         seeds = range(VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes)
-        runs, failure_rate = evaluate(lambda: _speed_env(self.params.env_id, env_kwargs), controller, seeds)
+        runs, failure_rate = evaluate(lambda: _speed_env(env_kwargs), controller, seeds)
         return runs, failure_rate, control_cost(runs)
 
     def base_cost(self) -> None:
@@ -549,15 +584,14 @@ class _NormalizedPolicy:
         return self.model.predict(observation, deterministic=deterministic)
 
 
-def _speed_env(env_id: str, env_kwargs: dict[str, Any]):
+def _speed_env(env_kwargs: dict[str, Any]) -> MicroGravityLandingEnv:
     """The training environment with the speed action (a controller composes the residual itself)
-    and the validation schedules."""
-    import gymnasium as gym
-
+    and the validation schedules: made from the class, so no id's registered defaults (a residual
+    action) come back."""
     from microg_env.scenarios import VALIDATION_SAMPLER
 
     kwargs = {k: v for k, v in env_kwargs.items() if k not in ("action_mode", "base_controller", "decision_period")}
-    return gym.make(env_id, **(kwargs | {"scenario_sampler": VALIDATION_SAMPLER}))
+    return MicroGravityLandingEnv(**(kwargs | {"scenario_sampler": VALIDATION_SAMPLER}))
 
 
 def _show(value: float | None, spec: str) -> str:

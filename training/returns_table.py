@@ -1,0 +1,105 @@
+"""The returns table of ``MicroGravityLanding-Residual-v1``: what each controller earns, per scenario.
+
+Every controller runs in the residual environment with the id's defaults (a residual x setpoint of
++-1 um on `feedforward`, held 5 control periods; plants and drives drawn by
+``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero residual`` (`feedforward`
+alone), the other classical controllers as the base with a zero residual (an all-zero residual is
+exactly its base) and learned policies (shipped names or policy folders trained on this task). A
+return is the episode's undiscounted sum of rewards; the table gives mean ± std over seeds from
+1000, the comparison's test seeds. ``training`` draws the id's own schedules; the other scenarios
+are the comparison's, outside the training draws. The id's ``reward_threshold`` is ``adaptive``'s
+mean return on ``training`` rounded down: a policy above it beats the best deployable classical
+controller on the task it was trained on.
+
+Run: ``python training/returns_table.py [--seeds 5] [--scenarios training,condition-1] [--policies residual-ppo]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+
+import gymnasium as gym
+import numpy as np
+
+import microg_env  # noqa: F401  (registers the ids)
+from microg_env.analysis.comparison import TEST_SEED
+from microg_env.controllers.policy import check_policy_folder, shipped_policy_folder
+from microg_env.controllers.registry import is_policy_folder
+from microg_env.scenarios import comparison_scenarios
+
+ENV_ID = "MicroGravityLanding-Residual-v1"
+#: The base controllers run with a zero residual, by the row's name.
+BASES = {"zero residual": "feedforward", "pid": "pid", "adaptive": "adaptive", "oracle": "oracle"}
+SCENARIOS = ("training", *comparison_scenarios())
+
+
+def episode_return(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], seed: int) -> float:
+    """The undiscounted return of one episode of ``env`` reset with ``seed``, actions ``act(obs)``."""
+    obs, _ = env.reset(seed=seed)
+    total, done = 0.0, False
+    while not done:
+        obs, reward, terminated, truncated, _ = env.step(act(obs))
+        total += float(reward)
+        done = terminated or truncated
+    return total
+
+
+def make_env(scenario: str, base: str = "feedforward") -> gym.Env:
+    """The id's environment on ``scenario`` ("training": its own draws) with ``base`` under the residual."""
+    if scenario == "training":
+        return gym.make(ENV_ID, base_controller=base)
+    return gym.make(ENV_ID, base_controller=base, scenario_sampler=None, scenario=comparison_scenarios()[scenario])
+
+
+def policy_actor(name: str) -> Callable[[np.ndarray], np.ndarray]:
+    """The deterministic action of the policy ``name`` (shipped or a folder) trained on the id's task."""
+    folder = name if is_policy_folder(name) else shipped_policy_folder(name)
+    card, policy = check_policy_folder(folder)
+    env = card["env_kwargs"]
+    task = gym.spec(ENV_ID).kwargs
+    for key in ("action_mode", "base_controller", "decision_period", "residual_limit_m"):
+        if env.get(key) != task[key]:
+            raise ValueError(f"policy {name!r} was trained with {key} {env.get(key)!r}, not the task's {task[key]!r}")
+    return lambda obs: policy.predict(obs, deterministic=True)[0].reshape(-1)
+
+
+def returns(row: str, scenario: str, seeds: int) -> list[float]:
+    """The returns of controller ``row`` (a :data:`BASES` name, "random" or a policy) on ``scenario``."""
+    env = make_env(scenario, BASES.get(row, "feedforward"))
+    values = []
+    for seed in range(TEST_SEED, TEST_SEED + seeds):
+        if row == "random":
+            rng = np.random.default_rng(seed)
+            act = lambda obs, rng=rng: rng.uniform(-1.0, 1.0, size=1).astype(np.float32)  # noqa: E731
+        elif row in BASES:
+            act = lambda obs: np.zeros(1, dtype=np.float32)  # noqa: E731
+        else:
+            act = policy_actor(row)
+        values.append(episode_return(env, act, seed))
+    env.close()
+    return values
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=5, help="seeds per scenario, from 1000 (default 5)")
+    parser.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated (default: every one)")
+    parser.add_argument("--policies", default="residual-ppo", help="learned policies, comma-separated")
+    args = parser.parse_args(argv)
+    scenarios = args.scenarios.split(",")
+    rows = ["random", *BASES, *filter(None, args.policies.split(","))]
+    print("| controller | " + " | ".join(f"`{s}`" for s in scenarios) + " |")
+    print("|---" * (len(scenarios) + 1) + "|")
+    for row in rows:
+        cells = []
+        for scenario in scenarios:
+            values = returns(row, scenario, args.seeds)
+            cells.append(f"{np.mean(values):.1f} ± {np.std(values):.1f}")
+        print(f"| {row} | " + " | ".join(cells) + " |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
