@@ -1,4 +1,5 @@
-"""The analysis scripts behind the adaptive baseline's settings and the README's partial oracles run."""
+"""The analysis scripts behind the adaptive baseline's settings, the README's partial oracles and
+its returns table run."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ TRAINING = Path(__file__).resolve().parents[1] / "training"
     [
         ("tune_adaptive", ["--steps", "0.003", "--seeds", "1", "--duration", "0.3"], "step 0.003: J = "),
         ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
+        ("returns_table", ["--seeds", "1", "--scenarios", "training"], "| zero residual (adaptive) | "),
     ],
 )
 def test_training_script_runs(name, args, expected, monkeypatch, capsys):

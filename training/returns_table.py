@@ -1,15 +1,15 @@
 """The returns table of ``MicroGravityLanding-Residual-v1``: what each controller earns, per scenario.
 
 Every controller runs in the residual environment with the id's defaults (a residual x setpoint of
-+-1 um on `feedforward`, held 5 control periods; plants and drives drawn by
-``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero residual`` (`feedforward`
++-1 um on `adaptive`, held 5 control periods; plants and drives drawn by
+``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero residual`` (`adaptive`
 alone), the other classical controllers as the base with a zero residual (an all-zero residual is
 exactly its base) and learned policies (shipped names or policy folders trained on this task). A
 return is the episode's undiscounted sum of rewards; the table gives mean ± std over seeds from
 1000, the comparison's test seeds. ``training`` draws the id's own schedules; the other scenarios
-are the comparison's, outside the training draws. The id's ``reward_threshold`` is ``adaptive``'s
-mean return on ``training`` rounded down: a policy above it beats the best deployable classical
-controller on the task it was trained on.
+are the comparison's, outside the training draws. The id's ``reward_threshold`` is the zero
+residual's mean return on ``training`` rounded down: a policy above it beats the best deployable
+classical controller on the task it was trained on.
 
 Run: ``python training/returns_table.py [--seeds 5] [--scenarios training,condition-1] [--policies residual-ppo]``.
 """
@@ -31,7 +31,8 @@ from microg_env.scenarios import comparison_scenarios
 
 ENV_ID = "MicroGravityLanding-Residual-v1"
 #: The base controllers run with a zero residual, by the row's name.
-BASES = {"zero residual": "feedforward", "pid": "pid", "adaptive": "adaptive", "oracle": "oracle"}
+BASE = gym.spec(ENV_ID).kwargs["base_controller"]  # the id's own, under a zero residual
+BASES = {"pid": "pid", "feedforward": "feedforward", f"zero residual ({BASE})": BASE, "oracle": "oracle"}
 SCENARIOS = ("training", *comparison_scenarios())
 
 
@@ -46,7 +47,7 @@ def episode_return(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], seed: 
     return total
 
 
-def make_env(scenario: str, base: str = "feedforward") -> gym.Env:
+def make_env(scenario: str, base: str = BASE) -> gym.Env:
     """The id's environment on ``scenario`` ("training": its own draws) with ``base`` under the residual."""
     if scenario == "training":
         return gym.make(ENV_ID, base_controller=base)
@@ -67,7 +68,7 @@ def policy_actor(name: str) -> Callable[[np.ndarray], np.ndarray]:
 
 def returns(row: str, scenario: str, seeds: int) -> list[float]:
     """The returns of controller ``row`` (a :data:`BASES` name, "random" or a policy) on ``scenario``."""
-    env = make_env(scenario, BASES.get(row, "feedforward"))
+    env = make_env(scenario, BASES.get(row, BASE))
     values = []
     for seed in range(TEST_SEED, TEST_SEED + seeds):
         if row == "random":
@@ -86,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5, help="seeds per scenario, from 1000 (default 5)")
     parser.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated (default: every one)")
-    parser.add_argument("--policies", default="residual-ppo", help="learned policies, comma-separated")
+    parser.add_argument("--policies", default="", help="learned policies trained on this task, comma-separated")
     args = parser.parse_args(argv)
     scenarios = args.scenarios.split(",")
     rows = ["random", *BASES, *filter(None, args.policies.split(","))]
