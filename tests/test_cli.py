@@ -608,3 +608,12 @@ def test_a_generated_bad_run_folder_is_one_line_naming_its_file_and_is_left_unch
     assert len(err.splitlines()) == 1, err
     assert Path(name).name in err or "--resume" in err, err
     assert _read_tree(folder) == before
+
+
+def test_a_misspelt_option_gets_the_closest_option_of_its_command(capsys):
+    assert main(["run", "--seedd", "3"]) == 2
+    assert capsys.readouterr().err.strip() == "microg: error: unrecognized arguments: --seedd 3; did you mean --seed?"
+    assert main(["compare", "--refrence", "pid"]) == 2
+    assert "did you mean --reference?" in capsys.readouterr().err
+    assert main(["run", "stray"]) == 2
+    assert "did you mean" not in capsys.readouterr().err  # a stray word is not an option

@@ -192,3 +192,19 @@ def test_cli_compare_runs_held_out_schedules_on_wider_plants(capsys):
     first, second = (c["values"]["collision_excursion_m"] for c in data["cases"])
     assert math.isfinite(first)
     assert first != second
+
+
+def test_the_figures_label_micrometres_and_say_which_plants(randomized):
+    """x_landing.png: µm on a scale that is linear near 0 and in decades beyond (the PID's 10 µm and
+    the sub-µm controllers in one panel), titled by what was drawn; metrics.png: µm in its titles."""
+    from microg_env.analysis.comparison_report import PLANT_TITLES, render_figures
+
+    figures = render_figures(randomized)
+    axes = figures["x_landing.png"].axes
+    assert axes[0].get_ylabel() == "x [µm], linear within ±0.1"
+    assert axes[0].get_yscale() == "symlog"
+    assert figures["x_landing.png"].get_suptitle() == f"x during the landing, seed {TEST_SEED}{PLANT_TITLES[True]}"
+    assert sorted(t.get_text() for t in axes[0].get_legend().get_texts()) == ["feedforward", "pid"]
+    titles = [ax.get_title() for ax in figures["metrics.png"].axes]
+    assert "x at the collision [µm]" in titles
+    assert "x in free fall [µm]" in titles

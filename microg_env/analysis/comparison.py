@@ -57,9 +57,9 @@ QUANTITIES: dict[str, Quantity] = {
     "residual_gravity_g": Quantity(
         "residual gravity error", "g", 1.0, lambda run: finite_mean(map(abs, run.residual_gravity_g))
     ),
-    "free_fall_excursion_m": Quantity("x in free fall", "um", 1e6, lambda run: run.flexible_unit_excursion_free_fall_m),
+    "free_fall_excursion_m": Quantity("x in free fall", "µm", 1e6, lambda run: run.flexible_unit_excursion_free_fall_m),
     "collision_excursion_m": Quantity(
-        "x at the collision", "um", 1e6, lambda run: run.flexible_unit_excursion_collision_m
+        "x at the collision", "µm", 1e6, lambda run: run.flexible_unit_excursion_collision_m
     ),
     "deformation_error": Quantity("peak deformation vs ideal", "%", 100.0, _deformation_error),
 }

@@ -140,6 +140,18 @@ def render_markdown(c: Comparison) -> str:
     return "\n".join(lines)
 
 
+#: x_landing.png's vertical axis is linear within this many µm of 0 and logarithmic beyond.
+X_LINEAR_UM = 0.1
+X_TICKS_UM = (-10.0, -1.0, -0.1, 0.0, 0.1, 1.0, 10.0)
+#: What x_landing.png's title says of the plants, by ``Comparison.randomize``.
+PLANT_TITLES = {
+    False: "",
+    True: ", randomised plant",
+    "full": ", randomised plant and drive",
+    "wider": ", plant and drive from ranges wider than training's",
+}
+
+
 def render_figures(c: Comparison) -> dict[str, object]:
     """``x_landing.png``: x from 1 s before to 3 s after the touchdown, one panel per scenario;
     ``metrics.png``: each metric's mean per controller (log scale), std as error bar, worst as a dot."""
@@ -154,14 +166,17 @@ def render_figures(c: Comparison) -> dict[str, object]:
                     t, x = result.x_window
                     ax.plot(t, x * 1e6, lw=0.8, color=f"C{i}", label=controller)
         ax.axvline(0.0, color="k", lw=0.5)
-        ax.set_ylabel("x [um]")
+        # the PID's 10 um and the sub-um controllers in one panel: linear near 0, decades beyond
+        ax.set_yscale("symlog", linthresh=X_LINEAR_UM, linscale=0.7)
+        ax.set_yticks(X_TICKS_UM, [f"{tick:g}" for tick in X_TICKS_UM])
+        ax.set_ylabel(f"x [µm], linear within ±{X_LINEAR_UM:g}")
         ax.set_title(scenario, fontsize=9)
         ax.grid(alpha=0.3)
     if axes[0].get_legend_handles_labels()[0]:  # no touchdown, no line
         axes[0].legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("time from the first touchdown [s]")
     axes[-1].set_xlim(*X_WINDOW_S)
-    landing.suptitle(f"x during the landing, seed {c.seeds[0]}" + (", randomised plant" if c.randomize else ""))
+    landing.suptitle(f"x during the landing, seed {c.seeds[0]}{PLANT_TITLES[c.randomize]}")
 
     metrics = figure_type(figsize=(3.2 * len(QUANTITIES), 3.6), layout="constrained")
     panels = np.atleast_1d(metrics.subplots(1, len(QUANTITIES)))

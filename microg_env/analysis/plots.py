@@ -33,7 +33,7 @@ def plot_run(trajectory: Trajectory, reference: Trajectory, title: str, path: Pa
     axes[0].set_ylabel("foot height [mm]")
     axes[0].legend(loc="upper right")
     axes[1].plot(t, trajectory.x_m * 1e6, color="C2")
-    axes[1].set_ylabel("x [um]")
+    axes[1].set_ylabel("x [µm]")
     axes[2].plot(t, trajectory.lander_accel_m_s2 * 1e3, lw=0.6, label="rig")
     axes[2].plot(tr, reference.lander_accel_m_s2 * 1e3, "--", label="ideal microgravity")
     axes[2].set_ylabel("lander accel [mm/s$^2$]")

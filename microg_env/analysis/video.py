@@ -62,7 +62,7 @@ class LandingVideo:
         lines = (
             self.title,
             f"t = {info['time_s']:6.2f} s   foot height {info['foot_height_m'] * 1e3:7.2f} mm (pad top: 0)",
-            f"x = {info['x_m'] * 1e6:+7.3f} um   pad force {info['pad_force_n']:6.2f} N",
+            f"x = {info['x_m'] * 1e6:+7.3f} µm   pad force {info['pad_force_n']:6.2f} N",
         )
         draw.rectangle((0, 0, image.width, 8 + 19 * len(lines)), fill=(0, 0, 0))
         for i, line in enumerate(lines):

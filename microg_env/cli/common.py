@@ -4,6 +4,7 @@ naming the errors they cause, the pad options, output-folder checks, a quiet pro
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
 import os
 from collections.abc import Callable
@@ -25,6 +26,18 @@ class UsageError(Exception):
 class Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # argparse would print the whole usage first
         raise UsageError(f"{self.prog}: error: {one_line(message)}")
+
+    def parse_args(self, args=None, namespace=None):
+        """argparse's, and an unknown option comes with the closest option of its command."""
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            command = getattr(parsed, "command", None)
+            parser = self._subparsers._group_actions[0].choices.get(command, self) if self._subparsers else self
+            name = extras[0].split("=")[0]
+            close = difflib.get_close_matches(name, list(parser._option_string_actions), n=1, cutoff=0.6)
+            hint = f"; did you mean {close[0]}?" if close and name.startswith("-") else ""
+            self.error(f"unrecognized arguments: {' '.join(extras)}{hint}")
+        return parsed
 
 
 def one_line(message: str) -> str:
