@@ -623,3 +623,26 @@ def test_campaign_files_refuse_a_key_given_twice_and_read_exponents_as_numbers(t
         "name: t\nbase: {scenario: condition-2, duration_s: 0.3}\nsweep:\n  overrides.sensors.ruler_noise_m: [5e-9]\n"
     )
     assert Campaign.load(path).sweep == {"overrides.sensors.ruler_noise_m": [5e-9]}  # YAML 1.1 read "5e-9"
+
+
+def test_a_campaign_on_its_own_local_ray_removes_that_instances_session_folder(tmp_path, monkeypatch):
+    """Each campaign used to leave its local Ray instance's session folder (logs) in the system's
+    temporary directory."""
+    import ray
+
+    from microg_env.experiments import distributed
+
+    sessions, start = [], ray.init
+
+    def init(**kwargs):
+        context = start(**kwargs)
+        sessions.append(context.address_info["session_dir"])
+        return context
+
+    monkeypatch.setattr(ray, "init", init)
+    path, out = tmp_path / "c.yml", tmp_path / "out"
+    path.write_text("name: tidy\nbase: {scenario: condition-2, duration_s: 0.3}\nsweep: {controller: [pid]}\n")
+    summary = distributed.execute(Campaign.load(path), out, num_cpus=1)
+    assert summary.done == 1
+    assert len(sessions) == 1
+    assert not Path(sessions[0]).exists()

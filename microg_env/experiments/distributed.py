@@ -129,8 +129,9 @@ def _execute(campaign, folder, address, num_cpus, on_progress) -> CampaignSummar
     stored = store.statuses()
     todo = [run for run in runs if stored.get(run.spec.hash) != OK]
     skipped = len(runs) - len(todo)
+    session = None  # the folder of the local Ray instance this campaign starts (its logs), removed after
     if todo and not ray.is_initialized():  # before anything is written
-        ray.init(
+        context = ray.init(
             address=address,
             num_cpus=None if address else num_cpus,
             include_dashboard=False,
@@ -138,6 +139,8 @@ def _execute(campaign, folder, address, num_cpus, on_progress) -> CampaignSummar
             logging_level="ERROR",
             configure_logging=True,
         )
+        if address is None:
+            session = getattr(context, "address_info", {}).get("session_dir")
     write_text(folder / CAMPAIGN_COPY, json.dumps(asdict(campaign), indent=2) + "\n")
     done = failed = 0
     if todo:
@@ -170,6 +173,8 @@ def _execute(campaign, folder, address, num_cpus, on_progress) -> CampaignSummar
             # already on its way trips a check in Ray's task manager and kills the driver.
             ray.shutdown()
             _finish(store, runs, folder)
+            if session is not None:
+                shutil.rmtree(session, ignore_errors=True)
     else:
         _finish(store, runs, folder)
     report = None
