@@ -165,6 +165,23 @@ def test_the_shipped_policy_records_its_training():
     assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
 
 
+def test_the_policy_shipped_for_the_registered_task_records_its_training():
+    """residual-ppo-adaptive: the best of five seeds of the packaged recipe on
+    MicroGravityLanding-Residual-v1 (the README gives all five)."""
+    folder = shipped_policy_folder("residual-ppo-adaptive")
+    card = policy_card(folder)
+    assert card["command"].startswith("microg train --env MicroGravityLanding-Residual-v1 --seed 4 ")
+    assert card["env_id"] == "MicroGravityLanding-Residual-v1"
+    assert card["hyperparams"] == load_hyperparams("ppo", "MicroGravityLanding-Residual-v1").as_config()
+    assert card["env_kwargs"]["base_controller"] == "adaptive"
+    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
+    assert totals["timesteps"] >= card["target_timesteps"] == 1_000_000
+    assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
+    assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
+    finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
+    assert "it beats the base controller alone (0.2007)" in finished
+
+
 @pytest.mark.slow
 def test_the_shipped_policy_beats_the_pid_fivefold_on_held_out_cases():
     """Condition 2 and heavy-second (its 1.4 kg never drawn in training) on two test seeds,
