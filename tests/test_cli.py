@@ -500,7 +500,9 @@ def test_a_generated_bad_hyperparameter_entry_is_one_line_naming_the_file(case, 
     path = tmp_path / "ppo.yml"
     path.write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
     logs = tmp_path / "logs"
+    start = time.perf_counter()
     code = main(["train", "-conf", str(path), "--timesteps", "64", "--log-folder", str(logs), "--quiet"])
+    assert time.perf_counter() - start < 60
     err = capsys.readouterr().err.strip()
     assert code == 2, err
     assert len(err.splitlines()) == 1, err
@@ -512,7 +514,9 @@ def test_a_generated_bad_hyperparameter_entry_is_one_line_naming_the_file(case, 
 def test_a_generated_bad_campaign_file_is_one_line_naming_the_file(case, data, tmp_path, capsys):
     path, out = tmp_path / "c.yml", tmp_path / "out"
     path.write_text(yaml.safe_dump(data))
+    start = time.perf_counter()
     code = main(["campaign", str(path), "--out", str(out), "--quiet"])
+    assert time.perf_counter() - start < 60
     err = capsys.readouterr().err.strip()
     assert code == 2, err
     assert len(err.splitlines()) == 1, err
@@ -546,7 +550,9 @@ def test_a_generated_bad_policy_card_is_one_line_naming_the_policy(case, text, t
     shutil.copytree(REPO / "microg_env" / "policies" / "residual-ppo", folder)
     (folder / "policy.json").write_text(text)
     before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    start = time.perf_counter()
     code = main(["run", "--controller", str(folder), "--duration", "0.01", "--json"])
+    assert time.perf_counter() - start < 60
     captured = capsys.readouterr()
     err = captured.err.strip()
     assert code == 2, err + captured.out[:200]
@@ -602,7 +608,9 @@ def test_a_generated_bad_run_folder_is_one_line_naming_its_file_and_is_left_unch
     data[key] = yaml.safe_load(value)
     path.write_text(yaml.safe_dump(data) if name.endswith(".yml") else json.dumps(data))
     before = _read_tree(folder)
+    start = time.perf_counter()
     code = main(["train", "--resume", str(folder), "--timesteps", "256", "--quiet"])
+    assert time.perf_counter() - start < 60
     err = capsys.readouterr().err.strip()
     assert code == 2, err
     assert len(err.splitlines()) == 1, err

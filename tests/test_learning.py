@@ -3,8 +3,10 @@ training pipeline end to end (every artifact, resume, interrupt), and rl-baselin
 
 import json
 import math
+import signal
 import subprocess
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -605,9 +607,16 @@ def _edit_latest(change):
     return edit
 
 
-def _empty_vecnormalize(folder):
-    state = json.loads((folder / "checkpoints" / "latest.json").read_text())
-    (folder / "checkpoints" / state["vecnormalize"]).write_bytes(b"")
+def _damage(key, damage):
+    def edit(folder):
+        state = json.loads((folder / "checkpoints" / "latest.json").read_text())
+        path = folder / "checkpoints" / state[key]
+        path.write_bytes(damage(path.read_bytes()))
+
+    return edit
+
+
+_empty_vecnormalize = _damage("vecnormalize", lambda data: b"")
 
 
 @pytest.mark.parametrize(
@@ -618,6 +627,8 @@ def _empty_vecnormalize(folder):
         (_edit_latest(lambda s: [s]), "not a checkpoint record"),
         (_edit_latest(lambda s: s | {"model": "rl_model_0_steps.zip"}), "missing or empty"),
         (_empty_vecnormalize, "vecnormalize .* is missing or empty"),
+        (_damage("vecnormalize", lambda data: b"\x80\x04garbage" + data[:40]), "vecnormalize .* cannot be read"),
+        (_damage("model", lambda data: data[: len(data) // 2]), "model .* is not a whole stable-baselines3 archive"),
         (lambda folder: (folder / "checkpoints" / "latest.json").write_text("{garbage"), "cannot read the run"),
         (lambda folder: (folder / "args.yml").write_text(""), "not a mapping"),
         (lambda folder: (folder / "args.yml").write_text("algo: ppo\nwings: 2\n"), "unknown keys wings"),
@@ -671,3 +682,40 @@ def test_validation_on_the_residual_task_drives_a_speed_environment():
     env = _speed_env(gym.spec(RESIDUAL_ID).kwargs).unwrapped
     assert (env.core.action_mode, env.core.decision_period) == ("speed", 1)
     assert env.domain_randomization == microg_env.DomainRandomization.full()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL])
+def test_a_run_killed_in_its_final_evaluation_is_finished_by_a_resume(tmp_path, signum):
+    """SIGTERM or SIGKILL while the run, checkpointed at its target, evaluates its last model: no
+    handler runs, and ``--resume`` at the same target evaluates and exports what is missing."""
+    logs = tmp_path / "logs"
+    command = [sys.executable, "-m", "microg_env.cli", "train", "-conf", str(_tiny_hyperparams(tmp_path, "ppo"))]
+    command += ["--timesteps", "128", "--eval-freq", "100000", "--eval-episodes", "3", "--checkpoint-freq", "100000"]
+    command += ["--log-folder", str(logs), "--quiet"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    latest = logs / "ppo" / f"{ENV_ID}_1" / "checkpoints" / "latest.json"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None:
+        try:
+            state = json.loads(latest.read_text())
+        except (OSError, ValueError):
+            state = {}
+        if state.get("timesteps", 0) >= 128 and not state.get("finished", True):
+            break  # in the end-of-run evaluation
+        time.sleep(0.01)
+    assert process.poll() is None, "the run ended before it could be stopped in its final evaluation"
+    process.send_signal(signum)
+    process.wait(timeout=60)
+    folder = latest.parents[1]
+    assert not (folder / "policy").exists()
+    resumed = subprocess.run(
+        [sys.executable, "-m", "microg_env.cli", "train", "--resume", str(folder), "--timesteps", "128", "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert json.loads(latest.read_text())["finished"] is True
+    assert (folder / "policy" / "policy.json").is_file()
+    assert json.loads((folder / "evaluations.json").read_text())[-1]["timesteps"] >= 128

@@ -34,6 +34,7 @@ import os
 import platform
 import shutil
 import time
+import zipfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
@@ -285,6 +286,35 @@ def _check_state(checkpoints: Path, state: object) -> None:
             raise ValueError(f"{where}: {key} must name a file in {str(checkpoints)!r}, got {shown(name)}")
         if not (checkpoints / name).is_file() or (checkpoints / name).stat().st_size == 0:
             raise ValueError(f"{where}: its {key} {str(checkpoints / name)!r} is missing or empty")
+    normalization = state.get("vecnormalize")
+    _check_checkpoint(where, checkpoints / state["model"], normalization and checkpoints / normalization)
+
+
+def _check_checkpoint(where: str, model: Path, normalization: Path | None) -> None:
+    """The model a checkpoint names is a stable-baselines3 archive (a zip holding its data), and its
+    normalisation unpickles to VecNormalize's statistics; else a ValueError naming the file, before
+    the resume opens anything (the folder must be trusted: these are pickles)."""
+    import pickle
+
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    try:
+        with zipfile.ZipFile(model) as archive:
+            readable = "data" in archive.namelist() and archive.testzip() is None
+    except (zipfile.BadZipFile, OSError):
+        readable = False
+    if not readable:
+        raise ValueError(f"{where}: its model {str(model)!r} is not a whole stable-baselines3 archive")
+    if normalization is None:
+        return
+    try:
+        with open(normalization, "rb") as stream:
+            statistics = pickle.load(stream)  # a trusted run folder, as the README says
+    except Exception as error:  # a damaged pickle raises any of a dozen kinds
+        fault = type(error).__name__
+        raise ValueError(f"{where}: its vecnormalize {str(normalization)!r} cannot be read ({fault})") from None
+    if not isinstance(statistics, VecNormalize):
+        raise ValueError(f"{where}: its vecnormalize {str(normalization)!r} holds no VecNormalize statistics")
 
 
 class _Run:
