@@ -225,3 +225,13 @@ def test_the_figures_label_micrometres_and_say_which_plants(randomized):
     titles = [ax.get_title() for ax in figures["metrics.png"].axes]
     assert "x at the collision [µm]" in titles
     assert "x in free fall [µm]" in titles
+
+
+def test_the_comparison_carries_the_papers_instant_of_collision_change(randomized):
+    """Beside max |x| over the contact, the paper's quantity: the change of x over the first 5 ms
+    of contact, read from each run's metrics."""
+    text = render_markdown(randomized)
+    assert "x change, 5 ms from touchdown [µm]" in text
+    for result in randomized.runs("pid"):
+        assert result.values["collision_instant_m"] == result.metrics.x_change_after_touchdown_m[1]
+        assert 0 < result.values["collision_instant_m"] < result.values["collision_excursion_m"]

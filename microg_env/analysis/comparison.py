@@ -21,7 +21,7 @@ import numpy as np
 
 from microg_env import validate
 from microg_env.analysis.evaluate import Summary, finite_mean, summarise
-from microg_env.analysis.metrics import RunMetrics, contacts
+from microg_env.analysis.metrics import COMPARED_WINDOW, RunMetrics, contacts
 from microg_env.analysis.paired import Paired, paired
 from microg_env.analysis.trajectory import Trajectory
 from microg_env.params import CONTROL_PERIOD_S
@@ -60,6 +60,9 @@ QUANTITIES: dict[str, Quantity] = {
     "free_fall_excursion_m": Quantity("x in free fall", "µm", 1e6, lambda run: run.flexible_unit_excursion_free_fall_m),
     "collision_excursion_m": Quantity(
         "x at the collision", "µm", 1e6, lambda run: run.flexible_unit_excursion_collision_m
+    ),
+    "collision_instant_m": Quantity(  # the paper's "change at the instant of collision"
+        "x change, 5 ms from touchdown", "µm", 1e6, lambda run: run.x_change_after_touchdown_m[COMPARED_WINDOW]
     ),
     "deformation_error": Quantity("peak deformation vs ideal", "%", 100.0, _deformation_error),
 }

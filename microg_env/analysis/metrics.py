@@ -6,8 +6,10 @@ The quantities the paper and the field report (all SI, accelerations up positive
   free fall (from ``SETTLE_S`` after the weight is placed to the next weight, the touchdown or the
   run's end), beside the ideal m g / (M + m); the compensation error a / a_ideal - 1 (Table 4)
   and the residual gravity error (a - a_ideal) / g;
-* flexible-unit excursion max |x| in free fall (start to touchdown) and during the first contact
-  (Section 3.2: "the relative displacement change ... at the instant of collision"); the largest
+* flexible-unit excursion max |x| in free fall (start to touchdown) and during the first contact;
+  the paper's own quantity (Section 3.2: "the relative displacement change ... at the instant of
+  collision and landing"), max |x(t) - x(touchdown)| over the first 1, 5 and 10 ms of contact (the
+  whole contact's max |x| is mostly the PID's integral lag, ~0.6 s after touchdown); the largest
   deviation of the support force from its balanced value; the servo's RMS torque (its
   continuous load, against the 48 N m rated);
 * of the first contact: peak pad deformation, peak (collision) acceleration of the lander
@@ -36,6 +38,11 @@ from microg_env.analysis.trajectory import Trajectory
 SETTLE_S = 0.2
 #: Shortest free fall (after settling) a descent acceleration is fitted over, s.
 MIN_FIT_S = 1.0
+#: Windows after the first touchdown over which the paper's "change at the instant of collision"
+#: is read, s: ``RunMetrics.x_change_after_touchdown_m`` has one value per window.
+INSTANT_WINDOWS_S = (1e-3, 5e-3, 10e-3)
+#: The window ``microg compare`` reports: 5 ms.
+COMPARED_WINDOW = INSTANT_WINDOWS_S.index(5e-3)
 
 
 @dataclass(frozen=True)
@@ -119,6 +126,8 @@ class RunMetrics:
     accelerometer_descent_accel_m_s2: list[float]
     flexible_unit_excursion_free_fall_m: float
     flexible_unit_excursion_collision_m: float
+    #: max |x(t) - x(touchdown)| over each of INSTANT_WINDOWS_S after the first touchdown.
+    x_change_after_touchdown_m: list[float]
     support_force_variation_n: float
     servo_rms_torque_n_m: float
     max_deformation_m: float
@@ -254,6 +263,14 @@ def compute_metrics(traj: Trajectory, reference: Trajectory) -> RunMetrics:
         unavailable["flexible_unit_excursion_collision_m"] = "the run ended before the first lift-off"
     else:
         collision = _max_abs(traj.x_m[found[0].start : found[0].end])
+    changes = []
+    for i, window in enumerate(INSTANT_WINDOWS_S):
+        change = math.nan if touchdown is None else x_change_after(traj, found[0].touchdown_s, window)
+        if not math.isfinite(change):
+            unavailable[f"x_change_after_touchdown_m[{i}]"] = (
+                f"the run ended before {window * 1e3:g} ms after the first touchdown"
+            )
+        changes.append(change)
     rms = rms_height_error(traj, reference, ideal_landing.rebound_apex_s)
     if not math.isfinite(rms):
         unavailable["reference_rms_height_error_m"] = "the run ended before the apex of the reference's first rebound"
@@ -268,6 +285,7 @@ def compute_metrics(traj: Trajectory, reference: Trajectory) -> RunMetrics:
         accelerometer_descent_accel_m_s2=sensed,
         flexible_unit_excursion_free_fall_m=_max_abs(traj.x_m[free_fall]),
         flexible_unit_excursion_collision_m=collision,
+        x_change_after_touchdown_m=changes,
         support_force_variation_n=_max_abs(traj.support_force_deviation_n),
         servo_rms_torque_n_m=float(np.sqrt(np.mean(traj.servo_torque_n_m**2))),
         max_deformation_m=rig.max_deformation_m,
@@ -295,6 +313,16 @@ MEASURED_METRICS = tuple(
     for name in RunMetrics.__dataclass_fields__
     if name not in {"ideal_descent_accel_m_s2", "residual_gravity_g", "termination_reason", "unavailable"}
 )
+
+
+def x_change_after(traj: Trajectory, touchdown_s: float, window_s: float) -> float:
+    """max |x(t) - x(touchdown)| over the samples in (touchdown, touchdown + window] (x at the
+    touchdown interpolated between samples); NaN if the run ends before the window does."""
+    t = traj.time_s
+    if t[-1] < touchdown_s + window_s - 1e-12:
+        return math.nan
+    inside = (t > touchdown_s) & (t <= touchdown_s + window_s + 1e-12)
+    return _max_abs(traj.x_m[inside] - float(np.interp(touchdown_s, t, traj.x_m)))
 
 
 def rms_height_error(traj: Trajectory, reference: Trajectory, until_s: float) -> float:

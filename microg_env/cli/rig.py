@@ -10,6 +10,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from microg_env.analysis.metrics import INSTANT_WINDOWS_S
 from microg_env.cli.common import (
     DROP_OPTIONS,
     RUN_OPTIONS,
@@ -159,6 +160,8 @@ def _print_run(scenario, pad, args: argparse.Namespace, m) -> None:
     print("flexible unit and drive")
     print(_format_row("max |x| in free fall [um]", [m.flexible_unit_excursion_free_fall_m], 1e6, ".3f"))
     print(_format_row("max |x| during the collision [um]", [m.flexible_unit_excursion_collision_m], 1e6, ".3f"))
+    for window, change in zip(INSTANT_WINDOWS_S, m.x_change_after_touchdown_m, strict=True):
+        print(_format_row(f"x change, {window * 1e3:g} ms from touchdown [um]", [change], 1e6, ".3f"))
     print(_format_row("support force variation [N]", [m.support_force_variation_n], 1.0, ".4f"))
     print(_format_row("servo RMS torque [N m] (rated 48)", [m.servo_rms_torque_n_m], 1.0, ".3f"))
     print(f"{'first landing':<38}{'rig':>12}{'ideal':>12}")
