@@ -233,5 +233,5 @@ def test_the_comparison_carries_the_papers_instant_of_collision_change(randomize
     text = render_markdown(randomized)
     assert "x change, 5 ms from touchdown [µm]" in text
     for result in randomized.runs("pid"):
-        assert result.values["collision_instant_m"] == result.metrics.x_change_after_touchdown_m[1]
+        assert result.values["collision_instant_m"] == result.metrics.x_change_after_touchdown_m[0]
         assert 0 < result.values["collision_instant_m"] < result.values["collision_excursion_m"]

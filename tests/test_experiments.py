@@ -625,24 +625,29 @@ def test_campaign_files_refuse_a_key_given_twice_and_read_exponents_as_numbers(t
     assert Campaign.load(path).sweep == {"overrides.sensors.ruler_noise_m": [5e-9]}  # YAML 1.1 read "5e-9"
 
 
-def test_a_campaign_on_its_own_local_ray_removes_that_instances_session_folder(tmp_path, monkeypatch):
+def test_a_campaign_on_its_own_local_ray_removes_that_instances_session_folder(tmp_path):
     """Each campaign used to leave its local Ray instance's session folder (logs) in the system's
-    temporary directory."""
-    import ray
-
-    from microg_env.experiments import distributed
-
-    sessions, start = [], ray.init
-
-    def init(**kwargs):
-        context = start(**kwargs)
-        sessions.append(context.address_info["session_dir"])
-        return context
-
-    monkeypatch.setattr(ray, "init", init)
+    temporary directory. In a process of its own, as every campaign test here starts Ray."""
     path, out = tmp_path / "c.yml", tmp_path / "out"
     path.write_text("name: tidy\nbase: {scenario: condition-2, duration_s: 0.3}\nsweep: {controller: [pid]}\n")
-    summary = distributed.execute(Campaign.load(path), out, num_cpus=1)
-    assert summary.done == 1
-    assert len(sessions) == 1
-    assert not Path(sessions[0]).exists()
+    script = (
+        "import json, sys, ray\n"
+        "from pathlib import Path\n"
+        "from microg_env.experiments import distributed\n"
+        "from microg_env.experiments.campaign import Campaign\n"
+        "sessions, start = [], ray.init\n"
+        "def init(**kwargs):\n"
+        "    context = start(**kwargs)\n"
+        "    sessions.append(context.address_info['session_dir'])\n"
+        "    return context\n"
+        "ray.init = init\n"
+        "summary = distributed.execute(Campaign.load(sys.argv[1]), sys.argv[2], num_cpus=1)\n"
+        "print(json.dumps({'done': summary.done, 'sessions': sessions}))\n"
+    )
+    command = [sys.executable, "-c", script, str(path), str(out)]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["done"] == 1
+    assert len(result["sessions"]) == 1
+    assert not Path(result["sessions"][0]).exists()

@@ -78,6 +78,10 @@ def test_metrics_at_the_default_physics_step_are_converged(condition):
         for x, y in pairs:
             if name == "compensation_error_pct":
                 assert x == pytest.approx(y, abs=0.02), name
+            elif name == "x_change_after_touchdown_m":
+                # The first milliseconds of contact resolve the touchdown's place in the step: 1.5 % (5 ms)
+                # and 0.4 % (10 ms) for condition 1, 4.4 % and 2.0 % for condition 3 (issue #20, item 1).
+                assert x == pytest.approx(y, rel=0.05), name
             elif name != "reference_rms_height_error_m":
                 assert x == pytest.approx(y, rel=0.01), name
     explained = 0.0  # height difference the descent differences make by the end of each stage, m
