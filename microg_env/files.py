@@ -20,7 +20,7 @@ from collections.abc import Callable, Hashable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from microg_env.validate import shown
+from microg_env.validate import fault, shown
 
 #: Marker written last into a staging folder: its presence means the folder is complete.
 _COMPLETE = ".complete"
@@ -54,7 +54,7 @@ def read_settings_text(path: str | Path, what: str) -> str:
 
 #: YAML 1.2's floats, added to PyYAML's YAML 1.1 ones, which read an exponent without a point
 #: (``5e-9``) as text.
-_YAML12_FLOAT = r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"
+_YAML12_FLOAT = r"^[-+]?(?:\.[0-9]+|[0-9][0-9_]*(?:\.[0-9_]*)?)[eE][-+]?[0-9]+$"
 
 
 def read_yaml(path: str | Path, what: str) -> Any:
@@ -68,8 +68,10 @@ def read_yaml(path: str | Path, what: str) -> Any:
         return yaml.load(text, Loader=_strict_yaml_loader())  # a SafeLoader
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
-        fault = str(error).strip().splitlines()[0] if mark is None else f"{error.problem} (line {mark.line + 1})"
-        raise ValueError(f"{what} {shown(str(path))} is not valid YAML: {fault}") from None
+        why = fault(error) if mark is None else f"{error.problem} (line {mark.line + 1})"
+        raise ValueError(f"{what} {shown(str(path))} is not valid YAML: {why}") from None
+    except (ValueError, OverflowError) as error:  # a value YAML parses but cannot build (a date 2024-13-45)
+        raise ValueError(f"{what} {shown(str(path))}: {fault(error)}") from None
 
 
 @functools.cache
@@ -94,7 +96,7 @@ def _strict_yaml_loader() -> type:
                 seen.add(key)
             return super().construct_mapping(node, deep)
 
-    StrictLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(_YAML12_FLOAT), list("-+0123456789"))
+    StrictLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(_YAML12_FLOAT), list("-+0123456789."))
     return StrictLoader
 
 

@@ -76,6 +76,9 @@ def apply_imperfections(params: RigParams, imperfections: Imperfections) -> RigP
 
 #: How much wider than :meth:`DomainRandomization.full` held-out test plants are drawn.
 WIDER = 1.5
+#: The randomisations known by name (:meth:`DomainRandomization.preset`): the plant (the
+#: defaults), the plant and the drive, both from wider ranges.
+PRESETS = ("plant", "full", "wider")
 
 
 @dataclass(frozen=True)
@@ -125,6 +128,12 @@ class DomainRandomization:
         times :data:`WIDER` (the cogging's phase is drawn anywhere already)."""
         full = cls.full()
         return cls(**{f.name: getattr(full, f.name) * WIDER for f in fields(cls)} | {"cogging_phase": 1.0})
+
+    @classmethod
+    def preset(cls, name: str) -> DomainRandomization:
+        """The randomisation named ``name``, one of :data:`PRESETS`."""
+        validate.choice("domain_randomization", name, PRESETS)
+        return cls() if name == "plant" else getattr(cls, name)()
 
     def _lander_range(self, params: RigParams) -> tuple[float, float]:
         mass = params.lander.mass_kg

@@ -478,6 +478,7 @@ def _conf_cases():
             yield f"conf {key}={value}", {**entry, key: yaml.safe_load(value)}
     for key, value in [("condition", 9), ("action_mode", "jump"), ("base_controller", "me"), ("decision_period", 0)]:
         yield f"conf env_kwargs.{key}={value}", {**entry, "env_kwargs": {**entry["env_kwargs"], key: value}}
+    yield "conf net_arch=[-1]", {**entry, "policy_kwargs": "dict(net_arch=[-1])"}  # torch's RuntimeError
 
 
 def _campaign_cases():

@@ -606,6 +606,12 @@ def test_a_damaged_part_file_is_named_with_what_to_do(tmp_path):
             store.statuses()
     bad.unlink()
     assert store.statuses() == {"a": "ok"}
+    # the odd part written first, two good ones after it: the odd one is named, not the newest
+    pq.write_table(pa.table({"spec_hash": ["b"], "status": ["ok"], "x_m": ["text"]}), bad)
+    os.utime(bad, ns=(1, 1))
+    store.write([{"spec_hash": "c", "status": "ok", "x_m": 2.0}])
+    with pytest.raises(ValueError, match=r"part-bad\.parquet"):
+        store.statuses()
 
 
 def test_campaign_files_refuse_a_key_given_twice_and_read_exponents_as_numbers(tmp_path):
@@ -651,3 +657,36 @@ def test_a_campaign_on_its_own_local_ray_removes_that_instances_session_folder(t
     assert result["done"] == 1
     assert len(result["sessions"]) == 1
     assert not Path(result["sessions"][0]).exists()
+
+
+def test_a_driver_refused_the_lock_leaves_the_other_drivers_new_folder(tmp_path, monkeypatch):
+    """Two drivers started at once on a new folder: the one refused the lock used to remove the
+    folder (it held only the other's lock file while that driver waited for Ray)."""
+    from microg_env.experiments import distributed
+    from microg_env.files import LOCK_FILE
+
+    path, out = tmp_path / "c.yml", tmp_path / "out"
+    path.write_text("name: racing\nbase: {scenario: condition-2, duration_s: 0.3}\nsweep: {controller: [pid]}\n")
+
+    @contextlib.contextmanager
+    def held_by_another(folder, what):
+        folder.mkdir(parents=True)
+        (folder / LOCK_FILE).write_text("")  # the first driver's, taken just now
+        raise ValueError(f"{what} {str(folder)!r} is being written by another process")
+        yield
+
+    monkeypatch.setattr(distributed, "folder_lock", held_by_another)
+    with pytest.raises(ValueError, match="being written by another process"):
+        distributed.execute(Campaign.load(path), out)
+    assert (out / LOCK_FILE).is_file()
+
+
+def test_a_stored_row_says_which_randomisation_drew_its_plant():
+    """ "wider" and "full" both draw the drive: a column tells them apart (the spec JSON alone did)."""
+    from microg_env.experiments.runner import RunResult
+    from microg_env.experiments.store import result_row
+
+    for randomize, preset in ((False, "none"), (True, "plant"), ("full", "full"), ("wider", "wider")):
+        row = result_row(RunResult(RunSpec(randomize=randomize), None, "not run"), {})
+        assert row["randomize_preset"] == preset
+        assert row["randomize_drive"] is (preset in ("full", "wider"))

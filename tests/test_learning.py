@@ -719,3 +719,15 @@ def test_a_run_killed_in_its_final_evaluation_is_finished_by_a_resume(tmp_path, 
     assert json.loads(latest.read_text())["finished"] is True
     assert (folder / "policy" / "policy.json").is_file()
     assert json.loads((folder / "evaluations.json").read_text())[-1]["timesteps"] >= 128
+
+
+def test_an_entry_is_checked_on_as_many_environments_as_the_run_steps(tmp_path):
+    """n_steps 1 is a rollout of 8 transitions on 8 environments: the check, once built on one
+    environment, refused it as SB3 refuses a rollout of one."""
+    entry = yaml.safe_load((REPO / "training" / "hyperparams" / "ppo.yml").read_text())[ENV_ID]
+    path = tmp_path / "ppo.yml"
+    path.write_text(yaml.safe_dump({ENV_ID: entry | {"n_envs": 8, "n_steps": 1, "batch_size": 8}}))
+    assert resolve(TrainSettings(hyperparams=str(path))).algo_kwargs["n_steps"] == 1
+    path.write_text(yaml.safe_dump({ENV_ID: entry | {"n_envs": 1, "n_steps": 1, "batch_size": 1}}))
+    with pytest.raises(ValueError, match="PPO refuses it"):
+        resolve(TrainSettings(hyperparams=str(path)))

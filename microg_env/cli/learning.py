@@ -20,6 +20,7 @@ from microg_env.cli.common import (
     seed_number,
 )
 from microg_env.controllers.registry import CONTROLLER_NAMES
+from microg_env.imperfections import PRESETS
 from microg_env.learning.hyperparams import ALGORITHMS, MAX_ENVS
 from microg_env.learning.train import MAX_EVAL_EPISODES, TrainSettings
 
@@ -124,7 +125,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             scenarios,
             seeds=args.seeds,
             first_seed=args.first_seed,
-            randomize={None: False, "plant": True, "full": "full", "wider": "wider"}[args.randomize],
+            randomize={None: False, "plant": True}.get(args.randomize, args.randomize),
             duration_s=args.duration,
             reference=args.reference,
             sensor_set=args.sensors,
@@ -221,7 +222,7 @@ def add_commands(commands) -> None:
         "--randomize",
         nargs="?",
         const="plant",
-        choices=("plant", "full", "wider"),
+        choices=PRESETS,
         help="plants drawn from each seed: the lander, pad, friction and weights (plant, the default), these "
         "and the drive's cogging, motor friction law, speed loop and torque filter (full), or both from ranges "
         "1.5 times wider than training's (wider)",

@@ -498,8 +498,8 @@ def _randomization(value: DomainRandomization | Mapping | bool | str | None) -> 
         return None
     if value is True:
         return DomainRandomization()
-    if value in ("full", "wider"):  # the plant and the drive, as trained or wider (a YAML file can name it)
-        return getattr(DomainRandomization, value)()
+    if isinstance(value, str):  # a preset by name (a YAML file can name it)
+        return DomainRandomization.preset(value)
     if isinstance(value, Mapping):
         return DomainRandomization(**value)
     return validate.instance("domain_randomization", value, DomainRandomization)

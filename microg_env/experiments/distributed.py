@@ -110,13 +110,15 @@ def execute(
     answers leaves no new folder behind."""
     folder = Path(folder)
     check_folder(campaign, folder)
-    new = not folder.exists()
+    new, locked = not folder.exists(), False
     try:
         with folder_lock(folder, "campaign folder"):
+            locked = True
             return _execute(campaign, folder, address, num_cpus, on_progress)
     except BaseException:
-        if new and [p.name for p in folder.iterdir()] == [LOCK_FILE]:
-            shutil.rmtree(folder, ignore_errors=True)  # only the lock was written
+        # A new folder holding only this driver's lock (a refused driver touches nothing)
+        if new and locked and folder.is_dir() and [p.name for p in folder.iterdir()] == [LOCK_FILE]:
+            shutil.rmtree(folder, ignore_errors=True)
         raise
 
 
@@ -131,8 +133,8 @@ def _execute(campaign, folder, address, num_cpus, on_progress) -> CampaignSummar
     skipped = len(runs) - len(todo)
     session = None  # the folder of the local Ray instance this campaign starts (its logs), removed after
     if todo and not ray.is_initialized():  # before anything is written
-        context = ray.init(
-            address=address,
+        context = ray.init(  # "local": an instance of its own, never a cluster found on the machine
+            address=address or "local",
             num_cpus=None if address else num_cpus,
             include_dashboard=False,
             log_to_driver=False,
@@ -230,7 +232,8 @@ def check_folder(campaign: Campaign, folder: Path) -> None:
 def check_address(address: str) -> None:
     """Before Ray is imported: raise ConnectionError unless a gRPC server, as a Ray head's GCS is,
     answers at ``address`` (HOST:PORT; ``auto`` finds the cluster this machine started), so a wrong
-    address or another service there fails in seconds, not after Ray's minutes of retries; and
+    address or another service there fails in seconds, not after Ray's minutes of retries (a head
+    that serves gRPC over TLS only is refused too: connect to it with Ray's own tools); and
     join a cluster that uses token authentication (Ray's default for ``ray start``) with the token
     Ray keeps in ~/.ray/auth_token, as ``ray start`` does."""
     if address != "auto":
@@ -243,12 +246,14 @@ def check_address(address: str) -> None:
             connection = socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S)
         except OSError as error:
             raise ConnectionError(f"nothing answers at {address} ({error.strerror or error})") from None
+        header = b""
         with connection:
             try:
                 connection.sendall(HTTP2_PREFACE)
-                header = connection.recv(9)
+                while len(header) < 4 and (chunk := connection.recv(9 - len(header))):
+                    header += chunk
             except OSError:  # a timeout or a reset: no gRPC server
-                header = b""
+                pass
         if len(header) < 4 or header[3] != HTTP2_SETTINGS:
             raise ConnectionError(f"the service at {address} is not a Ray cluster (it does not answer as gRPC does)")
     if "RAY_AUTH_MODE" not in os.environ and (Path.home() / ".ray" / "auth_token").is_file():

@@ -23,7 +23,7 @@ from microg_env.controllers.pid import PIDGains
 from microg_env.controllers.registry import BASELINES, check_controller_name
 from microg_env.envs.core import check_control_period
 from microg_env.envs.observation import SENSOR_SETS
-from microg_env.imperfections import IMPERFECTION_NAMES, DomainRandomization, Imperfections
+from microg_env.imperfections import IMPERFECTION_NAMES, PRESETS, DomainRandomization, Imperfections
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides
 from microg_env.scenarios import LoadStep, Scenario, comparison_scenarios
 from microg_env.sim.model import check_physics_step
@@ -33,11 +33,8 @@ from microg_env.validate import shown
 RETUNED_PID = "pid-retuned"
 #: What ``RunSpec.randomize`` draws: nothing, the plant (lander, pad, friction, weights), the
 #: plant and the drive, or both from ranges wider than training's.
-RANDOMIZE = {
-    False: None,
-    True: DomainRandomization(),
-    "full": DomainRandomization.full(),
-    "wider": DomainRandomization.wider(),
+RANDOMIZE = {False: None, True: DomainRandomization()} | {
+    name: DomainRandomization.preset(name) for name in PRESETS if name != "plant"
 }
 #: Fields added after campaigns were first stored, with their defaults (left out of :meth:`RunSpec.as_dict`
 #: at the default, so the content hash of every spec written before them is unchanged).

@@ -23,6 +23,7 @@ from microg_env.analysis.comparison import QUANTITIES
 from microg_env.analysis.metrics import RunMetrics
 from microg_env.experiments.runner import RunResult
 from microg_env.files import atomic_path
+from microg_env.validate import fault
 
 #: Prefix of the comparison's summary quantities (``microg compare``'s, one value per run).
 SUMMARY_PREFIX = "summary_"
@@ -52,7 +53,8 @@ def result_row(result: RunResult, columns: Mapping[str, Any]) -> dict[str, Any]:
         "controller": spec.controller,
         "seed": spec.seed,
         "randomize": spec.randomize is not False,  # the plant drawn from the seed
-        "randomize_drive": spec.randomize in ("full", "wider"),  # and the drive (the spec says how wide)
+        "randomize_drive": spec.randomize in ("full", "wider"),  # and the drive
+        "randomize_preset": {False: "none", True: "plant"}.get(spec.randomize, spec.randomize),
         "sensor_set": spec.sensor_set,
         "control_period_us": spec.control_period_us,
         "physics_step_us": spec.physics_step_us,
@@ -73,6 +75,15 @@ def result_row(result: RunResult, columns: Mapping[str, Any]) -> dict[str, Any]:
     row["spec"] = json.dumps(spec.as_dict(), sort_keys=True)
     row["versions"] = json.dumps(result.versions, sort_keys=True)
     return row
+
+
+def _concatenate(parts: list[pa.Table]) -> bool:
+    """Whether ``parts`` make one table (their columns promote to common types)."""
+    try:
+        pa.concat_tables(parts, promote_options="permissive")
+    except pa.ArrowException:
+        return False
+    return True
 
 
 class ResultStore:
@@ -96,20 +107,22 @@ class ResultStore:
         files = sorted(self.parts.glob("part-*.parquet"), key=lambda p: p.stat().st_mtime_ns)
         if not files:
             return pa.table({})
-        table = None
+        parts = []
         for path in files:
             try:
                 part = pq.read_table(path)
                 for name in ("spec_hash", "status"):
                     if part.schema.field(name).type != pa.string():
                         raise ValueError(f"its {name} column holds {part.schema.field(name).type}, not strings")
-                table = part if table is None else pa.concat_tables([table, part], promote_options="permissive")
             except (pa.ArrowException, KeyError, OSError, ValueError) as error:
-                fault = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-                raise ValueError(
-                    f"campaign results: part file {str(path)!r} cannot be read with the others ({fault}); move it "
-                    f"out of {str(self.parts)!r} and run the campaign again (its runs are run again)"
-                ) from None
+                raise self._damaged(path, error) from None
+            parts.append(part)
+        try:
+            table = pa.concat_tables(parts, promote_options="permissive")
+        except pa.ArrowException as error:  # a part's columns clash with the others': the one without
+            # which the rest make one table, the newest such (of two parts, the later written)
+            odd = next((i for i in reversed(range(len(parts))) if _concatenate(parts[:i] + parts[i + 1 :])), -1)
+            raise self._damaged(files[odd], error) from None
         rows: dict[str, int] = {}
         statuses = table.column("status").to_pylist()
         for i, spec_hash in enumerate(table.column("spec_hash").to_pylist()):
@@ -117,6 +130,12 @@ class ResultStore:
                 rows[spec_hash] = i
         order = list(rows) if hashes is None else [h for h in hashes if h in rows]
         return table.take([rows[h] for h in order])
+
+    def _damaged(self, path: Path, error: Exception) -> ValueError:
+        return ValueError(
+            f"campaign results: part file {str(path)!r} cannot be read with the others ({fault(error)}); move it "
+            f"out of {str(self.parts)!r} and run the campaign again (its runs are run again)"
+        )
 
     def statuses(self) -> dict[str, str]:
         """The stored status of each spec hash."""

@@ -185,11 +185,6 @@ def algo_arguments(params: Hyperparams) -> dict[str, Any]:
     return kwargs
 
 
-def first_line(error: Exception) -> str:
-    """The first line of an error's message."""
-    return str(error).strip().splitlines()[0]
-
-
 def _bounded_int(value: Any, where: str, high: int) -> int:
     value = _positive_int(value, where)
     if value > high:

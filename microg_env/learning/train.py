@@ -49,7 +49,7 @@ from microg_env.files import atomic_path, folder_lock, read_settings_text, read_
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import write_policy_folder
 from microg_env.params import CONTROL_PERIOD_S
-from microg_env.validate import shown
+from microg_env.validate import fault, shown
 
 #: First seed of the validation episodes that choose the best model (training envs are seeded
 #: ``seed`` to ``seed + n_envs - 1``; ``microg compare`` tests on seeds from 1000).
@@ -193,15 +193,24 @@ def check_entry(params: hp.Hyperparams) -> None:
     unknown = [key for key in params.algo_kwargs if key not in accepted or key in ("env", "policy")]
     if unknown:
         raise ValueError(f"{where}: {', '.join(map(repr, unknown))} is not an argument of {params.algo.upper()}")
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+    import warnings
 
-    try:  # the model and its normalisation built once on one environment: what they refuse, they refuse now
-        venv = DummyVecEnv([lambda: gym.make(params.env_id, **params.env_kwargs)])
-        if params.normalize is not None:
-            venv = VecNormalize(venv, **params.normalize)
-        algorithm(params.algo)(params.policy, venv, device="cpu", **hp.algo_arguments(params))
-    except (TypeError, ValueError, AssertionError, KeyError, AttributeError) as error:
-        raise ValueError(f"{where}: {params.algo.upper()} refuses it: {hp.first_line(error)}") from None
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from microg_env.learning.vec_env import BatchedVecEnv
+
+    # The model and its normalisation built once on the run's environments (a batch of rigs is
+    # cheap to make): what they refuse, they refuse now. Their warnings come when the run starts.
+    venv = BatchedVecEnv.make(params.n_envs, **params.env_kwargs)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            normalized = venv if params.normalize is None else VecNormalize(venv, **params.normalize)
+            algorithm(params.algo)(params.policy, normalized, device="cpu", **hp.algo_arguments(params))
+    except (TypeError, ValueError, AssertionError, KeyError, AttributeError, RuntimeError) as error:
+        raise ValueError(f"{where}: {params.algo.upper()} refuses it: {fault(error)}") from None
+    finally:
+        venv.close()
 
 
 def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings, hp.Hyperparams, dict[str, Any]]:
@@ -213,7 +222,7 @@ def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings
     try:
         state = json.loads(read_settings_text(latest, "checkpoint record"))
     except json.JSONDecodeError as error:
-        raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({hp.first_line(error)})") from None
+        raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({fault(error)})") from None
     settings = _check_args(folder / "args.yml", args)
     _check_state(folder / CHECKPOINTS, state)
     params = hp.load(settings.algo, settings.env_id, folder / "config.yml")
