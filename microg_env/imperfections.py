@@ -129,6 +129,11 @@ class DomainRandomization:
         full = cls.full()
         return cls(**{f.name: getattr(full, f.name) * WIDER for f in fields(cls)} | {"cogging_phase": 1.0})
 
+    @property
+    def draws_drive(self) -> bool:
+        """Whether any of the drive's parameters is drawn."""
+        return any((self.cogging, self.cogging_phase, self.lugre, self.speed_loop, self.torque_filter))
+
     @classmethod
     def preset(cls, name: str) -> DomainRandomization:
         """The randomisation named ``name``, one of :data:`PRESETS`."""

@@ -79,7 +79,7 @@ class RunSpec:
         set_(self, "seed", validate.integer("RunSpec.seed", self.seed, 0, 2**32 - 1))
         if not isinstance(self.randomize, bool | str) or self.randomize not in RANDOMIZE:
             raise ValueError(
-                f"RunSpec.randomize must be one of False, True, 'full', 'wider', got {shown(self.randomize)}"
+                f"RunSpec.randomize must be one of {', '.join(map(repr, RANDOMIZE))}, got {shown(self.randomize)}"
             )
         set_(self, "overrides", _overrides(self.overrides))
         set_(self, "gains", _named_floats("RunSpec.gains", self.gains, [f.name for f in fields(PIDGains)]))

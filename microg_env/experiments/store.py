@@ -22,6 +22,7 @@ import pyarrow.parquet as pq
 from microg_env.analysis.comparison import QUANTITIES
 from microg_env.analysis.metrics import RunMetrics
 from microg_env.experiments.runner import RunResult
+from microg_env.experiments.spec import RANDOMIZE
 from microg_env.files import atomic_path
 from microg_env.validate import fault
 
@@ -53,7 +54,7 @@ def result_row(result: RunResult, columns: Mapping[str, Any]) -> dict[str, Any]:
         "controller": spec.controller,
         "seed": spec.seed,
         "randomize": spec.randomize is not False,  # the plant drawn from the seed
-        "randomize_drive": spec.randomize in ("full", "wider"),  # and the drive
+        "randomize_drive": spec.randomize is not False and RANDOMIZE[spec.randomize].draws_drive,  # and the drive
         "randomize_preset": {False: "none", True: "plant"}.get(spec.randomize, spec.randomize),
         "sensor_set": spec.sensor_set,
         "control_period_us": spec.control_period_us,

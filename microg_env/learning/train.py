@@ -320,8 +320,8 @@ def _check_checkpoint(where: str, model: Path, normalization: Path | None) -> No
         with open(normalization, "rb") as stream:
             statistics = pickle.load(stream)  # a trusted run folder, as the README says
     except Exception as error:  # a damaged pickle raises any of a dozen kinds
-        fault = type(error).__name__
-        raise ValueError(f"{where}: its vecnormalize {str(normalization)!r} cannot be read ({fault})") from None
+        kind = type(error).__name__
+        raise ValueError(f"{where}: its vecnormalize {str(normalization)!r} cannot be read ({kind})") from None
     if not isinstance(statistics, VecNormalize):
         raise ValueError(f"{where}: its vecnormalize {str(normalization)!r} holds no VecNormalize statistics")
 
