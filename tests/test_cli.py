@@ -293,6 +293,15 @@ def test_run_custom_pad_and_physics_step(capsys):
     assert "physics step 50 us" in out
 
 
+def test_run_shows_its_progress_unless_quiet(capsys):
+    """`microg run` was silent for the whole run; its bar counts the control steps to the end."""
+    assert main(["run", "--duration", "2", "--json"]) == 0
+    bar = capsys.readouterr().err
+    assert "run:" in bar and "100%" in bar and "2.00k/2.00k" in bar
+    assert main(["run", "--duration", "2", "--json", "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+
+
 def test_a_closed_reader_ends_quietly(monkeypatch):
     """`microg drop | head -1`: the reader goes away; no BrokenPipeError traceback."""
 

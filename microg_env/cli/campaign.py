@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from microg_env.cli.common import ProgressStream, check_writable_folder
+from microg_env.cli.common import check_writable_folder, progress_bar
 
 #: Where a campaign's folder goes by default: ``results/campaigns/<name>``.
 DEFAULT_CAMPAIGN_ROOT = "results/campaigns"
@@ -28,7 +28,6 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
             raise ValueError(f"--address {args.address!r}: {error}") from None
     try:
         import ray  # noqa: F401
-        from tqdm import tqdm
     except ImportError:
         raise ValueError("microg campaign needs the campaign extra: pip install 'microg-env[campaign]'") from None
     from microg_env.experiments.distributed import execute
@@ -43,9 +42,7 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
     if args.num_cpus is not None and args.num_cpus < 1:
         raise ValueError(f"--num-cpus must be at least 1, got {args.num_cpus}")
     check_folder(campaign, Path(out))
-    with tqdm(
-        total=0, unit="run", desc=f"campaign {campaign.name}", file=ProgressStream(sys.stderr), disable=args.quiet
-    ) as bar:
+    with progress_bar(f"campaign {campaign.name}", args.quiet, unit="run") as bar:
 
         def progress(done: int, total: int) -> None:
             bar.total = total

@@ -1,5 +1,5 @@
 """What every ``microg`` command shares: one-line usage errors, option types with bounds, options
-naming the errors they cause, the pad options, output-folder checks, a quiet progress stream."""
+naming the errors they cause, the pad options, output-folder checks, the progress bar."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import argparse
 import difflib
 import math
 import os
+import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -162,6 +163,14 @@ class ProgressStream:
                 self.stream.flush()
             except BrokenPipeError:
                 self.open = False
+
+
+def progress_bar(desc: str, quiet: bool, total: float = 0, unit: str = "step"):
+    """tqdm's bar on stderr (``--quiet``: none), quiet once its reader goes away."""
+    from tqdm import tqdm
+
+    stream = ProgressStream(sys.stderr)
+    return tqdm(total=total, unit=unit, unit_scale=unit == "step", desc=desc, file=stream, disable=quiet)
 
 
 def pad_from_options(args: argparse.Namespace):

@@ -12,11 +12,11 @@ from pathlib import Path
 from microg_env.analysis.comparison import MAX_SEEDS, MAX_WORKERS, TEST_SEED
 from microg_env.cli.common import (
     MAX_SEED,
-    ProgressStream,
     add_duration_option,
     check_writable_folder,
     comma_list,
     count,
+    progress_bar,
     seed_number,
 )
 from microg_env.controllers.registry import CONTROLLER_NAMES
@@ -42,7 +42,6 @@ def _cmd_train(args: argparse.Namespace) -> int:
     try:
         import stable_baselines3  # noqa: F401
         import torch  # noqa: F401
-        from tqdm import tqdm
 
         from microg_env.learning.train import TrainingInterrupted, resolve, resumed_run, train
     except ImportError:
@@ -69,8 +68,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             named = args.hyperparams is not None and not str(error).startswith("--")
             raise ValueError(f"--hyperparams: {error}" if named else str(error)) from None
         check_writable_folder(settings.log_folder, "--log-folder")
-    stream = ProgressStream(sys.stderr)
-    with tqdm(total=0, unit="step", unit_scale=True, desc=f"train {algo}", file=stream, disable=args.quiet) as bar:
+    with progress_bar(f"train {algo}", args.quiet) as bar:
 
         def progress(done: int, total: int) -> None:
             bar.total = total
@@ -114,12 +112,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     if args.out is not None:
         comparison_report.figure_class()  # fail now, not after the runs, if matplotlib is missing
         comparison_report.check_output(args.out)
-    try:
-        from tqdm import tqdm
-    except ImportError:
-        raise ValueError("microg compare needs the report extra: pip install 'microg-env[report]'") from None
     total = len(controllers) * len(scenarios) * args.seeds
-    with tqdm(total=total, unit="episode", desc="compare", file=ProgressStream(sys.stderr), disable=args.quiet) as bar:
+    with progress_bar("compare", args.quiet, total, unit="episode") as bar:
         result = comparison.compare(
             controllers,
             scenarios,

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,7 +13,6 @@ from microg_env.analysis.metrics import INSTANT_WINDOWS_S
 from microg_env.cli.common import (
     DROP_OPTIONS,
     RUN_OPTIONS,
-    ProgressStream,
     add_duration_option,
     add_pad_options,
     add_physics_step_option,
@@ -23,6 +21,7 @@ from microg_env.cli.common import (
     naming,
     number,
     pad_from_options,
+    progress_bar,
     seed_number,
 )
 from microg_env.controllers.registry import CONTROLLER_NAMES
@@ -203,8 +202,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         title = f"microg: {spec.scenario_schedule().name}, {args.controller}, seed {args.seed}"
         video = LandingVideo(path, title)
         render = {"render_mode": "rgb_array", "width": VIDEO_SIZE[0], "height": VIDEO_SIZE[1]}
+    steps = round(spec.scenario_schedule().duration_s / spec.control_period_s)
     try:
-        result = run(spec, on_step=video, render=render)
+        with progress_bar("run", args.quiet, steps) as bar:
+            result = run(spec, on_step=video, on_progress=bar.update, render=render)
     except ValueError as error:
         raise naming(error, RUN_OPTIONS) from None
     trajectory, reference, metrics = result.trajectory, result.reference, result.metrics
@@ -273,20 +274,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
                 f"--out {args.out!r}: cannot create folder {str(out.parent)!r} ({error.strerror})"
             ) from None
     report.check_output(out)
-    try:
-        from tqdm import tqdm
-    except ImportError:
-        raise ValueError("microg reproduce needs the report extra: pip install 'microg-env[report]'") from None
     figure_class()  # fail now, not after the runs, if matplotlib is missing
     duration = 30.0 if args.duration is None else args.duration
-    with tqdm(
-        total=reproduction.total_steps(duration),
-        unit="step",
-        unit_scale=True,
-        desc="reproduce",
-        file=ProgressStream(sys.stderr),
-        disable=args.quiet,
-    ) as bar:
+    with progress_bar("reproduce", args.quiet, reproduction.total_steps(duration)) as bar:
         runs = reproduction.compute(duration_s=duration, seed=args.seed, progress=bar.update, workers=args.workers)
     report.write(runs, out)
     print(f"wrote {out / 'report.md'}")
@@ -355,6 +345,7 @@ def add_commands(commands) -> None:
     )
     add_pad_options(run)
     run.add_argument("--json", action="store_true", help="print one JSON object of metrics")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument(
         "--plot", metavar="FILE", help="write height, x, acceleration and pad force over time (.png, .pdf, .svg)"
     )
