@@ -235,3 +235,59 @@ def test_the_comparison_carries_the_papers_instant_of_collision_change(randomize
     for result in randomized.runs("pid"):
         assert result.values["collision_instant_m"] == result.metrics.x_change_after_touchdown_m[0]
         assert 0 < result.values["collision_instant_m"] < result.values["collision_excursion_m"]
+
+
+def test_metrics_png_pairs_each_controller_with_its_interval_on_linear_axes(randomized):
+    """metrics.png: per metric, each controller's ratio of means to the reference's with its 95 %
+    interval, linear axes, the reference's 1 marked; a ratio past OFF_SCALE drawn as its value."""
+    from microg_env.analysis.comparison_report import OFF_SCALE, paired_figure
+
+    figure = paired_figure(randomized, size=(6, 3))
+    panels = figure.axes
+    assert len(panels) == len(QUANTITIES)
+    assert all(ax.get_xscale() == "linear" for ax in panels)
+    assert [t.get_text() for t in panels[0].get_yticklabels()] == ["feedforward"]
+    assert {ax.get_xlabel() for ax in panels} == {"ratio to pid's mean"}
+    assert "x at the collision [µm]" in [ax.get_title() for ax in panels]
+    collision = panels[list(QUANTITIES).index("collision_excursion_m")]
+    pair = randomized.paired("feedforward", "collision_excursion_m", "pid")
+    assert pair.ratio < 1.0
+    lines = [line for line in collision.get_lines() if line.get_marker() == "o"]
+    assert lines[0].get_xdata()[0] == pytest.approx(pair.ratio)
+    assert any(line.get_xdata()[0] == 1.0 for line in collision.get_lines())  # the reference
+    flipped = replace(randomized, reference="feedforward")  # the PID's ratios run past the scale
+    texts = [t.get_text() for ax in paired_figure(flipped).axes for t in ax.texts]
+    ratio = flipped.paired("pid", "collision_excursion_m").ratio
+    assert ratio > OFF_SCALE and f"{ratio:.3g}×" in texts
+
+
+def test_labels_name_a_policy_folder_in_tables_figures_and_json(randomized):
+    """--label NAME=CONTROLLER: a policy's path is shown as NAME; the JSON keeps what was run."""
+    from microg_env.analysis.comparison_report import render_figures
+
+    shown = replace(randomized, reference="pid").relabelled({"ff": "feedforward"})
+    assert shown.controllers == ("pid", "ff")
+    assert shown.summary("ff", "collision_excursion_m") == randomized.summary("feedforward", "collision_excursion_m")
+    assert "| ff |" in render_markdown(shown)
+    data = shown.as_dict()
+    assert data["labels"] == {"ff": "feedforward"}
+    assert "ff" in data["paired"]
+    legend = render_figures(shown)["x_landing.png"].axes[0].get_legend().get_texts()
+    assert sorted(t.get_text() for t in legend) == ["ff", "pid"]
+    for labels in ({"ff": "adaptive"}, {"pid": "feedforward"}, {"a": "pid", "b": "pid"}, {"a,b": "pid"}):
+        with pytest.raises(ValueError, match="label"):
+            randomized.relabelled(labels)
+
+
+@pytest.mark.parametrize(
+    ("label", "message"),
+    [
+        ("ff", "bad label 'ff': give NAME=CONTROLLER"),
+        ("ff=adaptive", "--label ff=adaptive: 'adaptive' is not one of the controllers pid, feedforward"),
+    ],
+)
+def test_cli_compare_refuses_a_bad_label_before_running(capsys, label, message):
+    args = ["compare", "--controllers", "pid,feedforward", "--label", label, "--quiet"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1

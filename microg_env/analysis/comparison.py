@@ -14,8 +14,8 @@ threads), each controller driving its rigs in one vectorised call, the ideal ref
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -114,6 +114,25 @@ class Comparison:
     #: The controller the others are paired against (:meth:`paired`), or None.
     reference: str | None = None
     sensor_set: str = "extended"  # the rig's sensors (microg_env.envs.observation.SENSOR_SETS)
+    #: Names shown for controllers (``microg compare --label``): shown name -> the controller run.
+    labels: dict[str, str] = field(default_factory=dict)
+
+    def relabelled(self, labels: Mapping[str, str]) -> Comparison:
+        """This comparison with each controller run as one of ``labels``' values shown under its key
+        (a policy folder's path becomes a short name in tables and figures)."""
+        check_labels(labels, self.controllers)
+        shown = {run: label for label, run in labels.items()}
+
+        def name(controller: str) -> str:
+            return shown.get(controller, controller)
+
+        return replace(
+            self,
+            controllers=tuple(map(name, self.controllers)),
+            results=[replace(r, case=replace(r.case, controller=name(r.case.controller))) for r in self.results],
+            reference=None if self.reference is None else name(self.reference),
+            labels={**self.labels, **labels},
+        )
 
     def runs(self, controller: str, scenario: str | None = None) -> list[CaseResult]:
         return [
@@ -176,6 +195,7 @@ class Comparison:
             "per_scenario": {c: {s: summaries(c, s) for s in self.scenarios} for c in self.controllers},
             "reference": self.reference,
             "sensor_set": self.sensor_set,
+            "labels": self.labels,
             "paired": {
                 c: {name: self.paired(c, name).as_dict() for name in QUANTITIES}
                 for c in self.controllers
@@ -192,6 +212,17 @@ class Comparison:
                 for r in self.results
             ],
         }
+
+
+def check_labels(labels: Mapping[str, str], controllers: Sequence[str]) -> None:
+    """Raise ValueError unless each label names one of ``controllers``, once, with a new short name."""
+    for label, run in labels.items():
+        if run not in controllers:
+            raise ValueError(f"label {label}={run}: {run!r} is not one of the controllers {', '.join(controllers)}")
+        if not label.strip() or "," in label or (label in controllers and label != run):
+            raise ValueError(f"label {label}={run}: {label!r} is empty, has a comma or names another controller")
+    if len(set(labels.values())) < len(labels):
+        raise ValueError(f"label: a controller is given two names ({', '.join(labels)})")
 
 
 def compare(

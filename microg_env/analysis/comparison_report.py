@@ -133,8 +133,9 @@ def render_markdown(c: Comparison) -> str:
             lines.append(f"| {controller} | " + " | ".join(cells) + " |")
     lines += [
         "",
-        "Figures: `x_landing.png` (x around the first touchdown, first seed), `metrics.png` (means with std "
-        "and worst case). Every case's values: `comparison.json`.",
+        f"Figures: `x_landing.png` (x around the first touchdown, first seed), `metrics.png` (each metric's "
+        f"ratio to `{plot_reference(c)}`'s on the same episodes, with its 95 % interval; a ratio beyond "
+        f"{OFF_SCALE:g} is an arrow with its value). Every case's values: `comparison.json`.",
         "",
     ]
     return "\n".join(lines)
@@ -154,7 +155,7 @@ PLANT_TITLES = {
 
 def render_figures(c: Comparison) -> dict[str, object]:
     """``x_landing.png``: x from 1 s before to 3 s after the touchdown, one panel per scenario;
-    ``metrics.png``: each metric's mean per controller (log scale), std as error bar, worst as a dot."""
+    ``metrics.png``: :func:`paired_figure`."""
     figure_type = figure_class()
     n = len(c.scenarios)
     landing = figure_type(figsize=(9, 2.4 * n), layout="constrained")
@@ -178,23 +179,69 @@ def render_figures(c: Comparison) -> dict[str, object]:
     axes[-1].set_xlim(*X_WINDOW_S)
     landing.suptitle(f"x during the landing, seed {c.seeds[0]}{PLANT_TITLES[c.randomize]}")
 
-    metrics = figure_type(figsize=(3.2 * len(QUANTITIES), 3.6), layout="constrained")
-    panels = np.atleast_1d(metrics.subplots(1, len(QUANTITIES)))
-    positions = np.arange(len(c.controllers))
+    return {"x_landing.png": landing, "metrics.png": paired_figure(c)}
+
+
+#: A ratio interval reaching past this many times the reference's mean is drawn as an arrow at the
+#: panel's edge with its value written, so that the PID's 30 times does not flatten the sub-µm
+#: controllers' intervals around 1.
+OFF_SCALE = 4.0
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
+def plot_reference(c: Comparison) -> str:
+    """The controller metrics.png pairs the others against: ``--reference``, else the PID, else the
+    first."""
+    return c.reference or (BASELINE if BASELINE in c.controllers else c.controllers[0])
+
+
+def paired_figure(c: Comparison, size: tuple[float, float] | None = None):
+    """``metrics.png``: one panel per metric, each controller's ratio of means to the reference on
+    the same episodes, with its 95 % interval resampling seeds (:mod:`microg_env.analysis.paired`),
+    on a linear axis with the reference's 1 marked."""
+    reference = plot_reference(c)
+    others = [name for name in c.controllers if name != reference]
+    height = 1.3 + 0.4 * max(len(others), 1)
+    columns = math.ceil(len(QUANTITIES) / 2)
+    figure = figure_class()(figsize=size or (3.4 * columns, 2 * height), layout="constrained")
+    panels = figure.subplots(2, columns, sharey=True).ravel()
     for ax, (name, quantity) in zip(panels, QUANTITIES.items(), strict=True):
-        summaries = [c.summary(controller, name) for controller in c.controllers]
-        means = np.array([s.mean for s in summaries]) * quantity.scale
-        stds = np.array([s.std for s in summaries]) * quantity.scale
-        worst = np.array([s.worst for s in summaries]) * quantity.scale
-        colors = [f"C{i}" for i in range(len(c.controllers))]
-        ax.bar(positions, means, yerr=stds, color=colors, capsize=3)
-        ax.plot(positions, worst, "k.", label="worst")
-        ax.set_yscale("log")
-        ax.set_xticks(positions, c.controllers, rotation=30, ha="right", fontsize=8)
+        found = [(row, c.paired(other, name, reference)) for row, other in enumerate(others)]
+        found = [(row, p) for row, p in found if p.episodes and math.isfinite(p.ratio)]
+        shown = [x for _, p in found for x in (p.ratio_low, p.ratio_high) if x <= OFF_SCALE]
+        left = min([1.0, *shown]) * 0.9
+        right = max([1.0, *shown]) * 1.1
+        for row, p in found:
+            color = f"C{c.controllers.index(others[row])}"
+            if p.ratio > right:  # off the scale: an arrow at the edge and the value
+                ax.plot(right, row, ">", color=color, ms=7)
+                ax.annotate(f"{p.ratio:.3g}×", (right, row), xytext=(-6, 5), textcoords="offset points", ha="right")
+                continue
+            ax.errorbar(
+                p.ratio,
+                row,
+                xerr=[[p.ratio - p.ratio_low], [min(p.ratio_high, right) - p.ratio]],
+                fmt="o",
+                color=color,
+                capsize=3,
+            )
+        ax.axvline(1.0, color="k", lw=0.8)
+        ax.set_xlim(left, right)
         ax.set_title(f"{quantity.label} [{quantity.unit}]", fontsize=9)
-        ax.grid(alpha=0.3, axis="y")
-    panels[0].legend(fontsize=8)
-    return {"x_landing.png": landing, "metrics.png": metrics}
+        ax.set_xlabel(f"ratio to {reference}'s mean", fontsize=8)
+        ax.grid(alpha=0.3, axis="x")
+    panels[0].set_yticks(range(len(others)), others)
+    panels[0].set_ylim(len(others) - 0.5, -0.5)
+    figure.suptitle(
+        f"Paired against {reference} on the same {_count(len(c.scenarios), 'scenario')} × "
+        f"{_count(len(c.seeds), 'seed')}{PLANT_TITLES[c.randomize]}:\n"
+        "ratio of means and its 95 % interval resampling seeds (below 1 is better)",
+        fontsize=10,
+    )
+    return figure
 
 
 def check_output(out: str | Path) -> None:

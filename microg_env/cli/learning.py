@@ -86,6 +86,13 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _label(text: str) -> tuple[str, str]:
+    name, equals, controller = text.partition("=")
+    if not (equals and name.strip() and controller.strip()):
+        raise argparse.ArgumentTypeError(f"bad label {text!r}: give NAME=CONTROLLER")
+    return name.strip(), controller.strip()
+
+
 def _cmd_compare(args: argparse.Namespace) -> int:
     from microg_env.analysis import comparison, comparison_report
     from microg_env.controllers.registry import check_controller_name
@@ -102,7 +109,15 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         raise ValueError(
             f"--first-seed: {args.first_seed} with --seeds {args.seeds} runs seed {last}, above {MAX_SEED}"
         )
-    if args.reference is not None and args.reference not in controllers:
+    labels = dict(args.label)
+    if len(labels) < len(args.label):
+        raise ValueError(f"--label: a name is given twice ({', '.join(name for name, _ in args.label)})")
+    try:
+        comparison.check_labels(labels, controllers)
+    except ValueError as error:
+        raise ValueError(f"--{error}") from None
+    reference = labels.get(args.reference, args.reference)
+    if reference is not None and reference not in controllers:
         raise ValueError(f"--reference: must be one of --controllers {','.join(controllers)}, got {args.reference!r}")
     known = comparison_scenarios()
     scenarios = args.scenarios or list(known)
@@ -121,11 +136,11 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             first_seed=args.first_seed,
             randomize={None: False, "plant": True}.get(args.randomize, args.randomize),
             duration_s=args.duration,
-            reference=args.reference,
+            reference=reference,
             sensor_set=args.sensors,
             workers=args.workers,
             progress=bar.update,
-        )
+        ).relabelled(labels)
     if args.json:
         print(json.dumps(result.as_dict(), indent=2))
     else:
@@ -227,6 +242,14 @@ def add_commands(commands) -> None:
         default="extended",
         help="the rig's sensors: every one (extended, the default) or the paper's (grating ruler and encoder; the "
         "pad force and accelerometer entries read 0)",
+    )
+    compare.add_argument(
+        "--label",
+        type=_label,
+        action="append",
+        default=[],
+        metavar="NAME=CONTROLLER",
+        help="show CONTROLLER (one of --controllers, e.g. a policy folder) as NAME in tables and figures; repeat",
     )
     compare.add_argument(
         "--reference",
