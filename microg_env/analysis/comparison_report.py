@@ -212,7 +212,8 @@ def paired_figure(c: Comparison, size: tuple[float, float] | None = None):
         found = [(row, c.paired(other, name, reference)) for row, other in enumerate(others)]
         found = [(row, p) for row, p in found if p.episodes and math.isfinite(p.ratio)]
         shown = [x for _, p in found for x in (p.ratio_low, p.ratio_high) if x <= OFF_SCALE]
-        left = min([1.0, *shown]) * 0.9
+        low = min([1.0, *shown])
+        left = low * 0.9 if low > 0.5 else 0.0  # from 0 unless every interval is close to 1
         right = max([1.0, *shown]) * 1.1
         for row, p in found:
             color = f"C{c.controllers.index(others[row])}"

@@ -17,7 +17,7 @@ import mujoco
 
 from microg_env import __version__
 from microg_env.analysis.metrics import COMPARED_WINDOW, contacts
-from microg_env.analysis.plots import figure_class, save_figure
+from microg_env.analysis.plots import envelope, figure_class, save_figure
 from microg_env.analysis.trajectory import Trajectory
 from microg_env.controllers import load_gains
 from microg_env.files import check_output_folder, replace_folder
@@ -642,6 +642,8 @@ Tables 5 and 6 give the same pad's residuals on the full rig under the PID.
 ## Figures
 
 Solid: Table 1 pad; dashed: calibrated pad; dotted: the ideal-microgravity reference (Table 1 pad).
+Figure 3 draws x as each of 600 time bins' mean and min-max band: at one line per sample the
+drive's cogging ripple fills a solid band in which one pad's trace hides the other's.
 
 {figures}
 
@@ -686,8 +688,10 @@ def render_figures(rep: Reproduction) -> dict[str, object]:
 def _draw(name: str, ax, run: ConditionRun, style: str, label: str) -> None:
     t = run.trajectory
     contact = _first_contact(t)
-    if name == "fig3_flexible_unit.png":
-        ax.plot(t.time_s, t.x_m * 1e6, style, lw=0.7, label=label)
+    if name == "fig3_flexible_unit.png":  # the cogging ripple as a band, so neither pad hides the other
+        centres, low, mean, high = envelope(t.time_s, t.x_m * 1e6)
+        line = ax.plot(centres, mean, style, lw=0.9, label=f"{label}: mean per bin")[0]
+        ax.fill_between(centres, low, high, color=line.get_color(), alpha=0.25, lw=0, label=f"{label}: min-max per bin")
         ax.set_ylabel("x [µm]")
         ax.set_xlabel("time [s]")
     elif name == "fig4_acceleration.png":
