@@ -244,6 +244,32 @@ def test_export_mjcf_writes_a_model_that_compiles(tmp_path, capsys):
     assert out.stat().st_mode & 0o777 == 0o666 & ~_umask()  # the usual permissions, not 0600
 
 
+def test_the_exported_home_keyframe_holds_still_and_the_sliders_drive_the_support(tmp_path):
+    """Loaded as mujoco.viewer's *Load key* does, the home keyframe is balanced (it was not: the
+    servo saturated at -119 N m and the lander hit the guide stop within 0.5 s); the servo's
+    control range spans the screw's stroke, and moving its position slider moves the support
+    (the lander then drifts to a guide stop: x is unstable without the controller, Eq. 17)."""
+    out = tmp_path / "rig.xml"
+    assert main(["export-mjcf", str(out)]) == 0
+    model = mujoco.MjModel.from_xml_path(str(out))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+    worst = 0.0
+    for _ in range(10):  # 1 s with the controls at rest
+        mujoco.mj_step(model, data, nstep=1000)
+        worst = max(worst, float(np.abs(data.qacc).max()))
+    assert worst < 1.0
+    assert abs(data.qpos[1]) < 1e-5  # x stays within 10 µm of the QZS's balance
+    gear = model.actuator("servo").gear[0]
+    stroke = np.array(model.joint("screw").range) * gear
+    for limits in model.actuator("servo").ctrlrange:  # one row per input: position and speed
+        np.testing.assert_allclose(limits, stroke, rtol=1e-5)
+    assert model.actuator("servo").ctrllimited.all()
+    data.ctrl[0] += 0.01 * gear  # the position slider 10 mm up: the support follows
+    mujoco.mj_step(model, data, nstep=2000)
+    assert data.qpos[0] == pytest.approx(0.10, abs=1e-4)
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -297,7 +323,9 @@ def test_run_shows_its_progress_unless_quiet(capsys):
     """`microg run` was silent for the whole run; its bar counts the control steps to the end."""
     assert main(["run", "--duration", "2", "--json"]) == 0
     bar = capsys.readouterr().err
-    assert "run:" in bar and "100%" in bar and "2.00k/2.00k" in bar
+    assert "run:" in bar
+    assert "100%" in bar
+    assert "2.00k/2.00k" in bar
     assert main(["run", "--duration", "2", "--json", "--quiet"]) == 0
     assert capsys.readouterr().err == ""
 

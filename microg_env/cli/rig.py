@@ -91,7 +91,7 @@ def _cmd_export_mjcf(args: argparse.Namespace) -> int:
     from microg_env.files import check_output_file, write_text
     from microg_env.params import RigParams
     from microg_env.sim.limits import check_pad_model
-    from microg_env.sim.model import build_spec
+    from microg_env.sim.model import export_spec
 
     output = check_output_file(args.output, "FILE", (".xml",))
     params = replace(RigParams(), pad=pad_from_options(args))
@@ -100,8 +100,7 @@ def _cmd_export_mjcf(args: argparse.Namespace) -> int:
         check_pad_model(params.pad, params.lander.mass_kg + sum(args.load), step, "export-mjcf")
     except ValueError as error:
         raise naming(error, RUN_OPTIONS) from None
-    spec, _ = build_spec(params, tuple(args.load), physics_step_s=step)
-    spec.compile()
+    spec = export_spec(params, tuple(args.load), physics_step_s=step)
     write_text(output, spec.to_xml())
     print(f"wrote {output}")
     return 0
@@ -390,7 +389,9 @@ def add_commands(commands) -> None:
     export = commands.add_parser(
         "export-mjcf",
         help="write the resolved rig model (every derived value filled in) as one MJCF file",
-        description="Write the rig built from the default parameters as a self-contained MJCF file.",
+        description="Write the rig built from the default parameters as a self-contained MJCF file, with a balanced "
+        "'home' keyframe (drive states included) and servo control ranges spanning the screw's stroke, for "
+        "mujoco.viewer's Load key and sliders.",
     )
     export.add_argument("output", metavar="FILE", help="MJCF file to write (.xml)")
     export.add_argument(

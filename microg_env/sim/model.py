@@ -601,6 +601,33 @@ def build_spec(
     return spec, n_contacts
 
 
+def export_spec(
+    params: RigParams, loads_kg: tuple[float, ...] = (), physics_step_s: float = PHYSICS_STEP_S
+) -> mujoco.MjSpec:
+    """The rig as a self-contained model for use outside microg (``microg export-mjcf``).
+
+    Its ``home`` keyframe is :meth:`Rig.reset`'s balanced rest at the template's height: positions,
+    the drive's references and activation states (its interpolated reference and the torque
+    filter's current), with the balancer trimmed there; loading it in ``mujoco.viewer`` holds still.
+    The servo's control range spans the screw's stroke in motor radians, so that the viewer's
+    sliders drive the support: its first input is the position reference, its second the speed
+    reference (rad/s), both clamped to that range. Without the controller, x is unstable (Eq. 17's
+    negative residual stiffness; the guide's static friction holds the balance within ~7 µm), so
+    a slider step sends the lander to a guide stop. Test weights are on the lander.
+    """
+    spec, pad_contacts = build_spec(params, loads_kg, physics_step_s=physics_step_s)
+    rig = Rig(spec.compile(), params, tuple(float(m) for m in loads_kg), pad_contacts, ideal_drive=False)
+    data = mujoco.MjData(rig.model)
+    home = spec.key("home")
+    rig.reset(data, float(home.qpos[0]))
+    spec.tendon("balancer").springlength = tuple(rig.model.tendon_lengthspring[rig._balancer])
+    home.qpos, home.ctrl, home.act = data.qpos.tolist(), data.ctrl.tolist(), data.act.tolist()
+    servo = spec.actuator("servo")
+    servo.ctrllimited = True
+    servo.ctrlrange = tuple(np.array(spec.joint("screw").range) * rig.gear)
+    return spec
+
+
 def build_rig(
     params: RigParams | None = None,
     loads_kg: tuple[float, ...] = (),
