@@ -4,6 +4,7 @@ import io
 import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -157,7 +158,8 @@ def _cases():
         for value in values:
             args = [key[0], value] if len(key) == 1 else [key[0], key[1], value]
             yield args, "FILE" if len(key) == 1 else key[1]
-    for command in ("drop", "run", "reproduce", "calibrate", "export-mjcf /tmp/never-written.xml", "train", "compare"):
+    commands = ("drop", "run", "view", "reproduce", "calibrate", "export-mjcf /tmp/never-written.xml", "train")
+    for command in (*commands, "compare"):
         yield [*command.split(), "--bogus"], "--bogus"
     yield ["--bogus"], "--bogus"
     yield ["fly"], "fly"
@@ -328,6 +330,59 @@ def test_run_shows_its_progress_unless_quiet(capsys):
     assert "2.00k/2.00k" in bar
     assert main(["run", "--duration", "2", "--json", "--quiet"]) == 0
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("setting", [{"DISPLAY": ""}, {"DISPLAY": ":0", "MUJOCO_GL": "egl"}])
+def test_view_without_a_display_is_one_line_and_exit_2(setting):
+    environment = {**os.environ, "PYTHONPATH": str(REPO), "WAYLAND_DISPLAY": ""} | setting
+    environment = {key: value for key, value in environment.items() if value}
+    result = subprocess.run(
+        [sys.executable, "-m", "microg_env.cli", "view", "--duration", "1"],
+        capture_output=True,
+        text=True,
+        env=environment,
+        check=False,
+        timeout=120,
+    )
+    assert result.returncode == 2
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert "microg view needs" in result.stderr
+    assert result.stdout == ""
+
+
+@pytest.mark.skipif(shutil.which("Xvfb") is None, reason="needs Xvfb (Debian's xvfb; .ci/run installs it)")
+def test_view_shows_a_landing_in_the_viewer_under_xvfb_and_exits_cleanly(tmp_path):
+    """microg view opens MuJoCo's passive viewer on a virtual screen, runs a second of condition 1
+    paced to twice real time, closes the window and its thread, prints the metrics, exits 0."""
+    display = f":{90 + os.getpid() % 100}"
+    server = subprocess.Popen(
+        ["Xvfb", display, "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        time.sleep(1.0)
+        environment = {key: value for key, value in os.environ.items() if key != "MUJOCO_GL"}
+        environment |= {"PYTHONPATH": str(REPO), "DISPLAY": display}
+        start = time.perf_counter()
+        result = subprocess.run(
+            [sys.executable, "-m", "microg_env.cli", "view", "--duration", "1", "--speed", "2"],
+            capture_output=True,
+            text=True,
+            env=environment,
+            cwd=tmp_path,
+            check=False,
+            timeout=120,
+        )
+    finally:
+        server.terminate()
+        server.wait(timeout=10)
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr
+    assert result.stdout.startswith("condition 1: loads 0.49 kg")
+    assert "1 s at 1000 us" in result.stdout
+    assert time.perf_counter() - start > 0.5  # paced: 1 s of simulated time at twice real time
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_closed_reader_ends_quietly(monkeypatch):

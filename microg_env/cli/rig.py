@@ -1,5 +1,5 @@
-"""The ``microg`` commands on the rig and the paper: ``drop``, ``run``, ``reproduce``, ``calibrate``
-and ``export-mjcf``."""
+"""The ``microg`` commands on the rig and the paper: ``drop``, ``run``, ``view``, ``reproduce``,
+``calibrate`` and ``export-mjcf``."""
 
 from __future__ import annotations
 
@@ -111,6 +111,8 @@ def _run_spec(args: argparse.Namespace):
     from microg_env.experiments.spec import RunSpec
     from microg_env.params import RigParams
 
+    if args.randomize and args.ideal:
+        raise ValueError("--randomize: an --ideal rig has nothing to randomise; give one of them")
     pad, paper = pad_from_options(args), RigParams().pad
     overrides = {
         f"pad.{name}": getattr(pad, name)
@@ -186,8 +188,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from microg_env.analysis.plots import figure_class
 
         figure_class()  # fail now, not after the run, if matplotlib is missing
-    if args.randomize and args.ideal:
-        raise ValueError("--randomize: an --ideal rig has nothing to randomise; give one of them")
     try:
         spec = _run_spec(args)
     except ValueError as error:
@@ -222,6 +222,29 @@ def _cmd_run(args: argparse.Namespace) -> int:
         video.write()
         if not args.json:
             print(f"wrote {video.path}")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from microg_env.analysis.viewer import LiveView, WindowClosed, check_display
+    from microg_env.experiments.runner import run
+
+    try:
+        spec = _run_spec(args)
+    except ValueError as error:
+        raise naming(error, RUN_OPTIONS) from None
+    check_display()
+    view = LiveView(f"microg: {spec.scenario_schedule().name}, {args.controller}, seed {args.seed}", args.speed)
+    try:
+        result = run(spec, on_step=view)
+    except WindowClosed:
+        print("microg view: the window was closed before the run ended")
+        return 0
+    except ValueError as error:
+        raise naming(error, RUN_OPTIONS) from None
+    finally:
+        view.close()
+    _print_run(result.trajectory.scenario, spec.rig_params().pad, args, result.metrics)
     return 0
 
 
@@ -282,8 +305,48 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_episode_options(parser: argparse.ArgumentParser) -> None:
+    """The options that say which episode ``run`` and ``view`` show (``_run_spec`` reads them)."""
+    parser.add_argument("--condition", type=int, choices=(1, 2, 3), default=1, help="the paper's condition (Table 2)")
+    parser.add_argument(
+        "--load",
+        type=_load_step,
+        action="append",
+        default=[],
+        metavar="KG[@HEIGHT_MM]",
+        help="a test weight placed at t = 0, or once the foot is HEIGHT_MM above the pad; repeat for more "
+        "(replaces the condition's loads)",
+    )
+    parser.add_argument(
+        "--height", type=number(MIN_HEIGHT_M * 1e3, 1e4, "mm", low_open=False), metavar="MM", help="descent height"
+    )
+    parser.add_argument(
+        "--controller",
+        type=controller_name,
+        default="pid",
+        metavar="NAME",
+        help=f"{', '.join(CONTROLLER_NAMES)}, or a policy folder (default pid)",
+    )
+    add_duration_option(parser, "simulated time (default 30 s)")
+    parser.add_argument("--seed", type=seed_number, default=0, help="seed of sensor noise and drift")
+    low, high = (1e6 * v for v in CONTROL_PERIOD_RANGE_S)
+    parser.add_argument(
+        "--control-period",
+        type=number(low, high, "us", low_open=False),
+        default=CONTROL_PERIOD_S * 1e6,
+        metavar="US",
+        help="control period (paper: 1000/500/200/100)",
+    )
+    add_physics_step_option(parser)
+    parser.add_argument("--ideal", action="store_true", help="switch every imperfection off (an ideal drive and rig)")
+    parser.add_argument(
+        "--randomize", action="store_true", help="a randomised plant (lander, pad, friction, weights) drawn from --seed"
+    )
+    add_pad_options(parser)
+
+
 def add_commands(commands) -> None:
-    """drop, run, reproduce, calibrate and export-mjcf."""
+    """drop, run, view, reproduce, calibrate and export-mjcf."""
     drop = commands.add_parser(
         "drop",
         help="drop a lander on the pad and compare with the Section 2 closed form",
@@ -307,42 +370,7 @@ def add_commands(commands) -> None:
         "baseline or learned controller, and print the microgravity and landing metrics beside the "
         "ideal-microgravity reference.",
     )
-    run.add_argument("--condition", type=int, choices=(1, 2, 3), default=1, help="the paper's condition (Table 2)")
-    run.add_argument(
-        "--load",
-        type=_load_step,
-        action="append",
-        default=[],
-        metavar="KG[@HEIGHT_MM]",
-        help="a test weight placed at t = 0, or once the foot is HEIGHT_MM above the pad; repeat for more "
-        "(replaces the condition's loads)",
-    )
-    run.add_argument(
-        "--height", type=number(MIN_HEIGHT_M * 1e3, 1e4, "mm", low_open=False), metavar="MM", help="descent height"
-    )
-    run.add_argument(
-        "--controller",
-        type=controller_name,
-        default="pid",
-        metavar="NAME",
-        help=f"{', '.join(CONTROLLER_NAMES)}, or a policy folder (default pid)",
-    )
-    add_duration_option(run, "simulated time (default 30 s)")
-    run.add_argument("--seed", type=seed_number, default=0, help="seed of sensor noise and drift")
-    low, high = (1e6 * v for v in CONTROL_PERIOD_RANGE_S)
-    run.add_argument(
-        "--control-period",
-        type=number(low, high, "us", low_open=False),
-        default=CONTROL_PERIOD_S * 1e6,
-        metavar="US",
-        help="control period (paper: 1000/500/200/100)",
-    )
-    add_physics_step_option(run)
-    run.add_argument("--ideal", action="store_true", help="switch every imperfection off (an ideal drive and rig)")
-    run.add_argument(
-        "--randomize", action="store_true", help="a randomised plant (lander, pad, friction, weights) drawn from --seed"
-    )
-    add_pad_options(run)
+    _add_episode_options(run)
     run.add_argument("--json", action="store_true", help="print one JSON object of metrics")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument(
@@ -354,6 +382,23 @@ def add_commands(commands) -> None:
         help="render the run headless with x and the pad force shown (.gif, or .mp4 with imageio-ffmpeg)",
     )
     run.set_defaults(handler=_cmd_run)
+
+    view = commands.add_parser(
+        "view",
+        help="watch a run live in MuJoCo's viewer (needs a display)",
+        description="Run a test condition as `microg run` does and show it in MuJoCo's passive viewer, in real time "
+        "or --speed times it, with the time, foot height, x and pad force written and the last 4 s of x and the "
+        "pad force plotted; print the run's metrics at its end. Closing the window ends the run.",
+    )
+    _add_episode_options(view)
+    view.add_argument(
+        "--speed",
+        type=number(1e-3, 1e3, "times real time"),
+        default=1.0,
+        metavar="X",
+        help="playback speed, times real time (default 1; 0.1: ten times slower)",
+    )
+    view.set_defaults(handler=_cmd_view)
 
     reproduce = commands.add_parser(
         "reproduce",

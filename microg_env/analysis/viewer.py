@@ -1,0 +1,131 @@
+"""A run shown live in MuJoCo's passive viewer (``microg view``): the environment and a controller
+step the rig, the window follows in real time (or ``speed`` times it), with the time, foot height,
+x and pad force written in a corner and the last seconds of x and the pad force plotted, the
+overlays of ``microg run --video``.
+
+Closing the window ends the run early. The viewer needs a display: on a machine without one the
+run is refused before anything starts (``microg run --video`` renders headless instead).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from microg_env.analysis.video import INSET_S, INSET_SAMPLE_S
+
+#: How often the window is redrawn, Hz of wall-clock time.
+FRAME_RATE_HZ = 60.0
+
+
+class WindowClosed(Exception):
+    """The user closed the viewer before the run ended."""
+
+
+def check_display() -> None:
+    """Raise ValueError on a machine the viewer cannot open a window on (GLFW would abort)."""
+    if os.environ.get("MUJOCO_GL", "glfw").lower() in {"egl", "osmesa"}:
+        raise ValueError(f"microg view needs a window, but MUJOCO_GL is {os.environ['MUJOCO_GL']!r}; unset it")
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise ValueError("microg view needs a display and DISPLAY is not set (headless: microg run --video FILE)")
+
+
+class LiveView:
+    """``run``'s ``on_step``: opens the passive viewer on the environment's model and data at the
+    reset, then redraws it with the overlays and paces the run to ``speed`` times real time."""
+
+    def __init__(self, title: str, speed: float = 1.0) -> None:
+        self.title, self.speed = title, speed
+        self.viewer = None
+        self.history: list[tuple[float, float, float]] = []  # (t s, x m, pad force N)
+        self._threads: list[threading.Thread] = []
+        self._start_wall = 0.0
+        self._next_frame_s = 0.0
+
+    def __call__(self, env, info: dict[str, Any]) -> None:
+        t = info["time_s"]
+        if not self.history or t >= self.history[-1][0] + INSET_SAMPLE_S - 1e-9:
+            self.history.append((t, info["x_m"], info["pad_force_n"]))
+        if self.viewer is None:
+            self._open(env)
+        if t + 1e-9 < self._next_frame_s:
+            return
+        if not self.viewer.is_running():
+            raise WindowClosed
+        self._next_frame_s = t + self.speed / FRAME_RATE_HZ
+        self.viewer.set_texts(self._texts(info))
+        self.viewer.set_figures(self._figures())
+        self.viewer.sync()
+        ahead = t / self.speed - (time.perf_counter() - self._start_wall)
+        if ahead > 0:
+            time.sleep(ahead)
+
+    def _open(self, env) -> None:
+        import mujoco.viewer
+
+        before = set(threading.enumerate())
+        model = env.unwrapped.model
+        self.viewer = mujoco.viewer.launch_passive(model, env.unwrapped.data, show_left_ui=False, show_right_ui=False)
+        self._threads = [thread for thread in threading.enumerate() if thread not in before]
+        with self.viewer.lock():  # the rig's side camera, as in the videos
+            self.viewer.cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+            self.viewer.cam.fixedcamid = model.camera("side").id
+        self._start_wall = time.perf_counter()
+
+    def _texts(self, info: dict[str, Any]):
+        import mujoco
+
+        left = "\n".join(("time", "foot height", "x", "pad force", "speed"))
+        right = "\n".join(
+            (
+                f"{info['time_s']:.2f} s",
+                f"{info['foot_height_m'] * 1e3:.2f} mm",
+                f"{info['x_m'] * 1e6:+.3f} um",  # MuJoCo's font has no µ
+                f"{info['pad_force_n']:.2f} N",
+                f"{self.speed:g}x real time",
+            )
+        )
+        return [
+            (mujoco.mjtFontScale.mjFONTSCALE_150, mujoco.mjtGridPos.mjGRID_TOPLEFT, self.title, ""),
+            (mujoco.mjtFontScale.mjFONTSCALE_150, mujoco.mjtGridPos.mjGRID_BOTTOMLEFT, left, right),
+        ]
+
+    def _figures(self):
+        """x [µm] and the pad force [N] over the last INSET_S, at the window's bottom right."""
+        import mujoco
+
+        now = self.history[-1][0]
+        recent = np.array([row for row in self.history if row[0] >= now - INSET_S]).reshape(-1, 3)
+        figures = []
+        viewport = self.viewer.viewport
+        left, bottom, width, height = (
+            (viewport.left, viewport.bottom, viewport.width, viewport.height) if viewport else (0, 0, 1200, 900)
+        )
+        for k, (column, scale, name) in enumerate(((2, 1.0, "pad force [N]"), (1, 1e6, "x [um]"))):  # x on top
+            figure = mujoco.MjvFigure()
+            mujoco.mjv_defaultFigure(figure)
+            figure.title = name
+            figure.xlabel = "time [s]"
+            figure.flg_extend = 1
+            count = min(len(recent), figure.linedata.shape[1] // 2)
+            points = recent[-count:]
+            figure.linedata[0, : 2 * count : 2] = points[:, 0] - now
+            figure.linedata[0, 1 : 2 * count : 2] = points[:, column] * scale
+            figure.linepnt[0] = count
+            figure.range[0][:] = (-INSET_S, 0.0)
+            rect = mujoco.MjrRect(left + width - width // 3, bottom + k * height // 4, width // 3, height // 4)
+            figures.append((rect, figure))
+        return figures
+
+    def close(self) -> None:
+        """Close the window and wait for the viewer's thread (a process that exits while it still
+        runs can crash in GLFW's teardown)."""
+        if self.viewer is not None:
+            self.viewer.close()
+            for thread in self._threads:
+                thread.join(timeout=10)
