@@ -182,9 +182,9 @@ def render_figures(c: Comparison) -> dict[str, object]:
     return {"x_landing.png": landing, "metrics.png": paired_figure(c)}
 
 
-#: A ratio interval reaching past this many times the reference's mean is drawn as an arrow at the
-#: panel's edge with its value written, so that the PID's 30 times does not flatten the sub-µm
-#: controllers' intervals around 1.
+#: A ratio past this many times the reference's mean is drawn as an arrow at the panel's edge with
+#: its value written (and intervals are cut here), so that the PID's 30 times does not flatten the
+#: sub-µm controllers' intervals around 1.
 OFF_SCALE = 4.0
 
 
@@ -211,7 +211,8 @@ def paired_figure(c: Comparison, size: tuple[float, float] | None = None):
     for ax, (name, quantity) in zip(panels, QUANTITIES.items(), strict=True):
         found = [(row, c.paired(other, name, reference)) for row, other in enumerate(others)]
         found = [(row, p) for row, p in found if p.episodes and math.isfinite(p.ratio)]
-        shown = [x for _, p in found for x in (p.ratio_low, p.ratio_high) if x <= OFF_SCALE]
+        # each point on the scale shows its interval, cut at OFF_SCALE; a point past it is an arrow
+        shown = [x for _, p in found if p.ratio <= OFF_SCALE for x in (p.ratio_low, min(p.ratio_high, OFF_SCALE))]
         low = min([1.0, *shown])
         left = low * 0.9 if low > 0.5 else 0.0  # from 0 unless every interval is close to 1
         right = max([1.0, *shown]) * 1.1
