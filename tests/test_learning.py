@@ -443,16 +443,40 @@ def test_rl_zoo3_trains_from_the_same_hyperparameter_file(tmp_path):
     assert "residual" in config
 
 
-def test_the_cli_progress_bar_names_the_default_algorithm(tmp_path, capsys):
-    """Without --algo the bar used to read 'train None'."""
+def test_the_cli_progress_bar_names_the_default_algorithm_and_ends_where_the_run_does(tmp_path, capsys):
+    """Without --algo the bar used to read 'train None', args.yml stored n_envs: null, and a target
+    that is not a whole number of rollouts overran the bar (200 steps asked, 256 run: '256step')."""
     from microg_env.cli import main
 
-    args = ["train", "--timesteps", "128", "--hyperparams", str(_tiny_hyperparams(tmp_path, "ppo"))]
+    args = ["train", "--timesteps", "100", "--hyperparams", str(_tiny_hyperparams(tmp_path, "ppo"))]
     args += ["--log-folder", str(tmp_path / "logs"), "--eval-freq", "128", "--eval-episodes", "1"]
     assert main(args) == 0
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     assert "train ppo" in err
     assert "train None" not in err
+    assert "128/128" in err.replace("\r", "\n").splitlines()[-1]  # 2 envs x 64 steps: one rollout
+    assert "target 100 steps (runs to 128: whole rollouts)" in out
+    run = tmp_path / "logs" / "ppo" / f"{ENV_ID}_1"
+    assert yaml.safe_load((run / "args.yml").read_text())["n_envs"] == 2
+    assert json.loads((run / "checkpoints" / "latest.json").read_text())["timesteps"] == 128
+
+
+@pytest.mark.parametrize(
+    ("algo", "n_envs", "n_steps", "start", "planned"),
+    [
+        ("ppo", 8, 256, 0, 2048),  # 2000 asked: one rollout of 8 x 256
+        ("ppo", 8, 256, 1000, 3048),  # a resumed session counts its rollouts from where it starts
+        ("ppo", 1, None, 0, 2048),  # stable-baselines3's default n_steps
+        ("sac", 3, None, 0, 2001),  # whole environment steps of 3
+        ("ppo", 8, 256, 5000, 5000),  # past the target: nothing left to run
+    ],
+)
+def test_planned_steps_is_where_stable_baselines3_stops(algo, n_envs, n_steps, start, planned):
+    from microg_env.learning.train import planned_steps
+
+    kwargs = {} if n_steps is None else {"n_steps": n_steps}
+    params = hp.Hyperparams(algo, ENV_ID, n_envs, 2000, "MlpPolicy", None, {}, kwargs)
+    assert planned_steps(params, start) == planned
 
 
 def test_a_run_stopped_in_its_final_evaluation_is_finished_by_a_resume(tmp_path, monkeypatch):

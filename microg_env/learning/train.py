@@ -153,9 +153,9 @@ def train(
                 state = {"timesteps": 0, "wall_s": 0.0, "best_cost": None, "sessions": 0, "resume_commands": []}
             else:
                 folder, settings, params, state = resumed_run(folder, settings)
-            write_text(
-                folder / "args.yml", yaml.safe_dump(asdict(settings), sort_keys=False)
-            )  # (a resume's new target)
+            # the run's settings as run: n_envs resolved (not null), a resume's new target
+            recorded = replace(settings, n_envs=params.n_envs)
+            write_text(folder / "args.yml", yaml.safe_dump(asdict(recorded), sort_keys=False))
             return _Run(folder, settings, params, state, progress, log).learn()
     except KeyboardInterrupt:  # before the training loop took it over (building, the base's evaluation)
         if resume_folder is None and not (folder / CHECKPOINTS / LATEST).exists():
@@ -409,11 +409,13 @@ class _Run:
         model = self._model(venv, resuming)
         venv.seed(env_seed)  # after the model, whose set_random_seed would seed the envs with its own seed
         target = self.params.n_timesteps
+        self.planned = planned_steps(self.params, model.num_timesteps)
+        whole = f" (runs to {self.planned}: whole rollouts)" if self.planned != target else ""
         command = (self.state.get("resume_commands") or [""])[-1] if resuming else self.settings.command
         self.log(
             f"{'resumed at' if resuming else 'started'} {model.num_timesteps} steps: {self.params.algo} on "
-            f"{self.params.env_id}, {self.params.n_envs} envs, target {target} steps, seed {self.settings.seed}; "
-            f"{command}"
+            f"{self.params.env_id}, {self.params.n_envs} envs, target {target} steps{whole}, seed "
+            f"{self.settings.seed}; {command}"
         )
         self.base_cost()
         callbacks = CallbackList([_callback(self)])
@@ -595,7 +597,7 @@ def _callback(run: _Run):
         def _on_step(self) -> bool:
             steps = self.num_timesteps
             if run.progress is not None:
-                run.progress(steps, run.params.n_timesteps)
+                run.progress(steps, run.planned)
             if steps >= self.next_eval:
                 run.evaluate(self.model)
                 self.next_eval = _next_multiple(steps, run.settings.eval_freq)
@@ -605,6 +607,16 @@ def _callback(run: _Run):
             return True
 
     return Callback()
+
+
+def planned_steps(params: hp.Hyperparams, start: int) -> int:
+    """The step count stable-baselines3's ``learn`` stops at from ``start``: the first at or past the
+    target that ends a whole rollout (PPO: n_steps x n_envs) or environment step (SAC: n_envs)."""
+    left = params.n_timesteps - start
+    if left <= 0:
+        return start
+    chunk = params.n_envs * (params.algo_kwargs.get("n_steps", 2048) if params.algo == "ppo" else 1)
+    return start + -(-left // chunk) * chunk
 
 
 def _next_multiple(steps: int, every: int) -> int:
