@@ -202,11 +202,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
         video = LandingVideo(path, title)
         render = {"render_mode": "rgb_array", "width": VIDEO_SIZE[0], "height": VIDEO_SIZE[1]}
     steps = round(spec.scenario_schedule().duration_s / spec.control_period_s)
+    bars = []  # opened at the first steps run: a run refused while it is built prints only its error
+
+    def progress(done: int) -> None:
+        if not bars:
+            bars.append(progress_bar("run", args.quiet, steps))
+        bars[0].update(done)
+
     try:
-        with progress_bar("run", args.quiet, steps) as bar:
-            result = run(spec, on_step=video, on_progress=bar.update, render=render)
+        result = run(spec, on_step=video, on_progress=progress, render=render)
     except ValueError as error:
         raise naming(error, RUN_OPTIONS) from None
+    finally:
+        for bar in bars:
+            bar.close()
     trajectory, reference, metrics = result.trajectory, result.reference, result.metrics
     if args.json:
         print(json.dumps(metrics.as_dict(), indent=2))
