@@ -43,6 +43,13 @@ def test_report_files(reproduced):
         assert heading in markdown
 
 
+def test_table_3_prints_the_papers_table_3(reproduced):
+    """The report's Table 3 printed Table 6's 131.2 for condition 1, where the paper's Table 3 has 130.20."""
+    _, _, markdown = reproduced
+    assert "| 1 | collision acceleration (mm/s²) | 130.2 |" in markdown
+    assert "| 1 | 131.20 |" in markdown  # Table 6 keeps its own value
+
+
 @pytest.mark.parametrize("pad", reproduction.PADS)
 @pytest.mark.parametrize("number", [1, 2, 3])
 def test_report_numbers_are_the_metrics_of_the_runs(reproduced, pad, number):
