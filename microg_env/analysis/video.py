@@ -122,7 +122,7 @@ class LandingVideo:
             if len(rows) > 1:
                 draw.line(list(zip(columns.tolist(), rows.tolist(), strict=True)), fill=colour, width=1)
             draw.text((left + 4, row_top + 2), text, fill=colour, font=font)
-        draw.text((left + width - 52, top + height - 13), f"last {INSET_S:g} s", fill=(170, 170, 170), font=font)
+        draw.text((left + width - 52, top + 2), f"last {INSET_S:g} s", fill=(170, 170, 170), font=font)
 
     def write(self) -> Path:
         if not self.frames:
