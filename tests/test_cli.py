@@ -21,8 +21,10 @@ from microg_env.cli import main
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _run(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:
-    environment = {**os.environ, "PYTHONPATH": str(REPO)}
+def _run(*args: str, cwd: Path = REPO, environment: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """``python -m microg_env.cli ARGS`` in ``cwd``, with this checkout first on the path
+    (``environment``: the whole environment, default this process's)."""
+    environment = {**(os.environ if environment is None else environment), "PYTHONPATH": str(REPO)}
     return subprocess.run(
         [sys.executable, "-m", "microg_env.cli", *args],
         capture_output=True,
@@ -334,16 +336,8 @@ def test_run_shows_its_progress_unless_quiet(capsys):
 
 @pytest.mark.parametrize("setting", [{"DISPLAY": ""}, {"DISPLAY": ":0", "MUJOCO_GL": "egl"}])
 def test_view_without_a_display_is_one_line_and_exit_2(setting):
-    environment = {**os.environ, "PYTHONPATH": str(REPO), "WAYLAND_DISPLAY": ""} | setting
-    environment = {key: value for key, value in environment.items() if value}
-    result = subprocess.run(
-        [sys.executable, "-m", "microg_env.cli", "view", "--duration", "1"],
-        capture_output=True,
-        text=True,
-        env=environment,
-        check=False,
-        timeout=120,
-    )
+    environment = {**os.environ, "WAYLAND_DISPLAY": ""} | setting
+    result = _run("view", "--duration", "1", environment={key: value for key, value in environment.items() if value})
     assert result.returncode == 2
     assert len(result.stderr.strip().splitlines()) == 1
     assert "microg view needs" in result.stderr
@@ -362,18 +356,9 @@ def test_view_shows_a_landing_in_the_viewer_under_xvfb_and_exits_cleanly(tmp_pat
     )
     try:
         time.sleep(1.0)
-        environment = {key: value for key, value in os.environ.items() if key != "MUJOCO_GL"}
-        environment |= {"PYTHONPATH": str(REPO), "DISPLAY": display}
+        environment = {key: value for key, value in os.environ.items() if key != "MUJOCO_GL"} | {"DISPLAY": display}
         start = time.perf_counter()
-        result = subprocess.run(
-            [sys.executable, "-m", "microg_env.cli", "view", "--duration", "1", "--speed", "2"],
-            capture_output=True,
-            text=True,
-            env=environment,
-            cwd=tmp_path,
-            check=False,
-            timeout=120,
-        )
+        result = _run("view", "--duration", "1", "--speed", "2", cwd=tmp_path, environment=environment)
     finally:
         server.terminate()
         server.wait(timeout=10)
