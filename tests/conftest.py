@@ -27,6 +27,7 @@ def run_json_keys() -> set[str]:
         "flexible_unit_excursion_free_fall_m",
         "flexible_unit_excursion_collision_m",
         "x_change_after_touchdown_m",
+        "placement_delay_s",
         "support_force_variation_n",
         "servo_rms_torque_n_m",
         "max_deformation_m",

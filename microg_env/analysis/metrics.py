@@ -5,7 +5,9 @@ The quantities the paper and the field report (all SI, accelerations up positive
 * descent acceleration of each load stage, by a quadratic fit of the foot height over the stage's
   free fall (from ``SETTLE_S`` after the weight is placed to the next weight, the touchdown or the
   run's end), beside the ideal m g / (M + m); the compensation error a / a_ideal - 1 (Table 4)
-  and the residual gravity error (a - a_ideal) / g;
+  and the residual gravity error (a - a_ideal) / g; how much later than in the reference each
+  weight placed in flight is placed (the paper's "lag of 3.9 s between the displacement and
+  acceleration curves" of condition 3: a slow first stage reaches the second weight's height late);
 * flexible-unit excursion max |x| in free fall (start to touchdown) and during the first contact;
   the paper's own quantity (Section 3.2: "the relative displacement change ... at the instant of
   collision and landing"), max |x(t) - x(touchdown)| over the first 5 and 10 ms of contact (the
@@ -126,6 +128,8 @@ class RunMetrics:
     #: The same descents as the lander's accelerometer reports them: its mean reading over each
     #: stage's fit window (bias and noise included; how an experiment without a position fit sees it).
     accelerometer_descent_accel_m_s2: list[float]
+    #: Per weight placed in flight, in order, its placement time minus the reference's, s.
+    placement_delay_s: list[float]
     flexible_unit_excursion_free_fall_m: float
     flexible_unit_excursion_collision_m: float
     #: max |x(t) - x(touchdown)| over each of INSTANT_WINDOWS_S after the first touchdown.
@@ -254,6 +258,14 @@ def compute_metrics(traj: Trajectory, reference: Trajectory) -> RunMetrics:
         sensed.append(math.nan)
         for name in _PER_STAGE:
             unavailable[f"{name}[{i}]"] = reason
+    delays = []
+    rig_times, ideal_times = placement_times(traj), placement_times(reference)
+    for i in range(sum(load.height_m is not None for load in traj.scenario.loads)):
+        if i < len(rig_times) and i < len(ideal_times):
+            delays.append(rig_times[i] - ideal_times[i])
+            continue
+        delays.append(math.nan)
+        unavailable[f"placement_delay_s[{i}]"] = f"the run or its reference ended before weight {i + 1} in flight"
     rig, ideal_landing = landing(traj), landing(reference)
     unavailable |= rig.unavailable
     unavailable |= {f"reference_{name}": reason for name, reason in ideal_landing.unavailable.items()}
@@ -285,6 +297,7 @@ def compute_metrics(traj: Trajectory, reference: Trajectory) -> RunMetrics:
         residual_gravity_g=[(a - a0) / g for a, a0 in zip(measured, ideal, strict=True)],
         microgravity_level_g=[abs(a) / g for a in measured],
         accelerometer_descent_accel_m_s2=sensed,
+        placement_delay_s=delays,
         flexible_unit_excursion_free_fall_m=_max_abs(traj.x_m[free_fall]),
         flexible_unit_excursion_collision_m=collision,
         x_change_after_touchdown_m=changes,
@@ -315,6 +328,11 @@ MEASURED_METRICS = tuple(
     for name in RunMetrics.__dataclass_fields__
     if name not in {"ideal_descent_accel_m_s2", "residual_gravity_g", "termination_reason", "unavailable"}
 )
+
+
+def placement_times(traj: Trajectory) -> list[float]:
+    """Times the weights placed after the start were placed, s (the samples where the placed load grows)."""
+    return [float(traj.time_s[k]) for k in np.flatnonzero(np.diff(traj.placed_load_kg) > 0) + 1]
 
 
 def x_change_after(traj: Trajectory, touchdown_s: float, window_s: float) -> float:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from microg_env.analysis.metrics import COMPARED_WINDOW, INSTANT_WINDOWS_S, contacts
+from microg_env.analysis.metrics import COMPARED_WINDOW, INSTANT_WINDOWS_S, contacts, placement_times
 from microg_env.analysis.trajectory import Trajectory
 from microg_env.files import atomic_path
 
@@ -42,11 +42,9 @@ EVENT_STYLES = {
 
 def run_events(trajectory: Trajectory) -> dict[str, list[float]]:
     """Times of the weights placed after the start, the touchdowns and the lift-offs, s."""
-    t = trajectory.time_s
-    placed = np.flatnonzero(np.diff(trajectory.placed_load_kg) > 0) + 1
     found = contacts(trajectory)
     return {
-        "weight placed": [float(t[k]) for k in placed],
+        "weight placed": placement_times(trajectory),
         "touchdown": [c.touchdown_s for c in found],
         "lift-off": [c.liftoff_s for c in found if c.liftoff_s == c.liftoff_s],
     }

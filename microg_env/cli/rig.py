@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -157,6 +158,8 @@ def _print_run(scenario, pad, args: argparse.Namespace, m) -> None:
     print(_format_row("compensation error [%]", m.compensation_error_pct, 1.0, "+.3f"))
     print(_format_row("residual gravity error [g]", m.residual_gravity_g, 1.0, "+.2e"))
     print(_format_row("microgravity level [g]", m.microgravity_level_g, 1.0, ".2e"))
+    if m.placement_delay_s:  # stage k > 1 begins with the (k-1)th weight placed in flight
+        print(_format_row("weight placed later than ideal [s]", [math.nan, *m.placement_delay_s], 1.0, "+.3f"))
     print("flexible unit and drive")
     print(_format_row("max |x| in free fall [um]", [m.flexible_unit_excursion_free_fall_m], 1e6, ".3f"))
     print(_format_row("max |x| during the collision [um]", [m.flexible_unit_excursion_collision_m], 1e6, ".3f"))

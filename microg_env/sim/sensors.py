@@ -28,8 +28,8 @@ class SensorModel:
         accelerometer = sensors.accelerometer_noise_density_m_s2_per_sqrt_hz * math.sqrt(0.5 / control_period_s)
         #: RMS noise per reading of each sensor (the encoder is exact but quantised).
         self.noise = np.array([sensors.ruler_noise_m, 0.0, accelerometer, sensors.force_noise_n])
-        #: Constant offset of each reading (the accelerometer's bias).
-        self.bias = np.array([0.0, 0.0, sensors.accelerometer_bias_m_s2, 0.0])
+        #: Constant offset of each reading (the ruler's zero, the accelerometer's bias).
+        self.bias = np.array([sensors.ruler_zero_offset_m, 0.0, sensors.accelerometer_bias_m_s2, 0.0])
         #: Quantisation steps of ruler and encoder, m.
         self.steps = np.array(
             [sensors.ruler_resolution_m, screw.lead_m / screw.belt_ratio / sensors.encoder_counts_per_rev]
