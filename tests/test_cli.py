@@ -242,7 +242,12 @@ def test_export_mjcf_writes_a_model_that_compiles(tmp_path, capsys):
     out = tmp_path / "rig_resolved.xml"
     assert main(["export-mjcf", str(out), "--load", "0.05"]) == 0
     model = mujoco.MjModel.from_xml_path(str(out))
-    assert model.body("load_0").mass[0] == pytest.approx(0.05)
+    assert model.body("load_0").mass[0] == 0.0  # in the model, held off the lander as at an episode's start
+    assert model.geom("load_0").rgba[3] == pytest.approx(0.25)
+    finest = tmp_path / "finest.xml"  # 10 us, the floor run accepts: 10 * 1e-6 fell below it
+    assert main(["export-mjcf", str(finest), "--physics-step", "10"]) == 0
+    assert mujoco.MjModel.from_xml_path(str(finest)).opt.timestep == pytest.approx(1e-5)
+    finest.unlink()
     assert model.geom_solref[model.geom("pad").id, 0] < 0  # the computed pad contact is in it
     assert list(tmp_path.iterdir()) == [out]  # no temporary file left behind
     assert out.stat().st_mode & 0o777 == 0o666 & ~_umask()  # the usual permissions, not 0600
@@ -254,7 +259,7 @@ def test_the_exported_home_keyframe_holds_still_and_the_sliders_drive_the_suppor
     control range spans the screw's stroke, and moving its position slider moves the support
     (the lander then drifts to a guide stop: x is unstable without the controller, Eq. 17)."""
     out = tmp_path / "rig.xml"
-    assert main(["export-mjcf", str(out)]) == 0
+    assert main(["export-mjcf", str(out), "--load", "1.0"]) == 0  # a weight held off did fall to the stop
     model = mujoco.MjModel.from_xml_path(str(out))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)

@@ -260,6 +260,8 @@ def test_metrics_png_pairs_each_controller_with_its_interval_on_linear_axes(rand
     ratio = flipped.paired("pid", "collision_excursion_m").ratio
     assert ratio > OFF_SCALE
     assert f"{ratio:.3g}×" in texts
+    alone = paired_figure(replace(randomized, controllers=("pid",), results=randomized.runs("pid")))
+    assert alone.axes[0].texts[0].get_text() == "one controller: nothing to pair"
 
 
 def test_labels_name_a_policy_folder_in_tables_figures_and_json(randomized):
@@ -275,9 +277,14 @@ def test_labels_name_a_policy_folder_in_tables_figures_and_json(randomized):
     assert "ff" in data["paired"]
     legend = render_figures(shown)["x_landing.png"].axes[0].get_legend().get_texts()
     assert sorted(t.get_text() for t in legend) == ["ff", "pid"]
-    for labels in ({"ff": "adaptive"}, {"pid": "feedforward"}, {"a": "pid", "b": "pid"}, {"a,b": "pid"}):
+    refused = [{"ff": "adaptive"}, {"pid": "feedforward"}, {"a": "pid", "b": "pid"}, {"a,b": "pid"}]
+    refused += [{"oracle": "feedforward"}, {"a|b": "pid"}, {"a\nb": "pid"}, {" a": "pid"}, {"": "pid"}]
+    for labels in refused:  # a registry name on another's results would publish them as that controller's
         with pytest.raises(ValueError, match="label"):
             randomized.relabelled(labels)
+    twice = randomized.relabelled({"ff": "feedforward"}).relabelled({"feed forward": "ff"})
+    assert twice.controllers == ("pid", "feed forward")
+    assert twice.labels == {"feed forward": "feedforward"}  # what ran, not the earlier label
 
 
 @pytest.mark.parametrize(

@@ -152,6 +152,17 @@ def test_a_ruler_zero_offset_moves_the_lander_and_delays_the_next_weight():
     assert offset.metrics.placement_delay_s[0] == pytest.approx(3.9, abs=0.2)
 
 
+def test_weights_placed_together_each_get_their_delay():
+    """Two weights at one height were one rise of the placed load: the second read 'the run ended
+    before weight 2' though it had not."""
+    spec = RunSpec("condition-1", duration_s=3.0, loads=((0.49, None), (0.1, 0.08), (0.1, 0.08)))
+    metrics = run(spec).metrics
+    assert len(metrics.placement_delay_s) == 2
+    assert metrics.placement_delay_s[0] == metrics.placement_delay_s[1]
+    assert abs(metrics.placement_delay_s[0]) < 1e-3
+    assert not any(name.startswith("placement_delay_s") for name in metrics.unavailable)
+
+
 def test_campaign_expands_grid_linked_keys_samples_and_seeds(tmp_path):
     path = tmp_path / "c.yml"
     path.write_text(

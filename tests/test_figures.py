@@ -1,11 +1,14 @@
 """The figures a user sees, rendered small and read back from the figure objects: units, legend
 entries, events, line styles; the video's inset from its pixels."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from microg_env.analysis.metrics import contacts
 from microg_env.analysis.plots import ENVELOPE_BINS, envelope, run_events, run_figure
+from microg_env.analysis.trajectory import CHANNELS
 from microg_env.experiments.runner import run
 from microg_env.experiments.spec import RunSpec
 
@@ -25,7 +28,9 @@ def test_envelope_is_each_bins_min_mean_and_max():
     np.testing.assert_allclose(low, [0, 1, 3])
     np.testing.assert_allclose(high, [5, 9, 4])
     np.testing.assert_allclose(mean, [2, 4, 13 / 4])
-    assert len(envelope(np.arange(50.0), np.arange(50.0))[0]) == 50 < ENVELOPE_BINS  # never more bins than samples
+    few = np.array([0.0, 1.0])  # no more samples than bins: each is drawn at its own time
+    np.testing.assert_array_equal(envelope(few, np.array([1.0, 2.0]))[0], few)
+    assert len(envelope(np.arange(50.0), np.arange(50.0))[0]) == 50 < ENVELOPE_BINS
 
 
 def test_run_figure_marks_the_events_and_labels_its_units(three_stage):
@@ -66,6 +71,13 @@ def test_run_figure_marks_the_events_and_labels_its_units(three_stage):
     assert "first 5 ms" in zoom.get_legend().get_texts()[0].get_text()
     (samples,) = zoom.get_lines()[:1]
     assert samples.get_xdata().max() == pytest.approx(20.0, abs=1.0)
+
+
+def test_a_run_without_a_touchdown_says_so_in_the_zoom(three_stage):
+    trajectory, reference = three_stage
+    early = replace(trajectory, **{name: getattr(trajectory, name)[:500] for name in CHANNELS})  # 0.5 s
+    zoom = run_figure(early, reference, "half a second", size=(4, 5)).axes[-1]
+    assert [t.get_text() for t in zoom.texts] == ["no touchdown in this run: nothing to zoom on"]
 
 
 def test_figure_3_draws_both_pads_as_bands_that_do_not_hide_each_other():

@@ -468,13 +468,18 @@ def test_the_cli_progress_bar_names_the_default_algorithm_and_ends_where_the_run
         ("ppo", 8, 256, 1000, 3048),  # a resumed session counts its rollouts from where it starts
         ("ppo", 1, None, 0, 2048),  # stable-baselines3's default n_steps
         ("sac", 3, None, 0, 2001),  # whole environment steps of 3
+        ("sac", 2, 64, 0, 2048),  # train_freq 64: rollouts of 2 x 64
+        ("sac", 2, (5, "step"), 0, 2000),
+        ("sac", 2, (1, "episode"), 0, None),  # episodes: not known ahead
         ("ppo", 8, 256, 5000, 5000),  # past the target: nothing left to run
     ],
 )
 def test_planned_steps_is_where_stable_baselines3_stops(algo, n_envs, n_steps, start, planned):
+    """Checked against stable-baselines3 2.9: SAC with train_freq 64 on 2 envs asked for 100 steps
+    stops at 128 (the bar overran a total of 100)."""
     from microg_env.learning.train import planned_steps
 
-    kwargs = {} if n_steps is None else {"n_steps": n_steps}
+    kwargs = {} if n_steps is None else {"n_steps" if algo == "ppo" else "train_freq": n_steps}
     params = hp.Hyperparams(algo, ENV_ID, n_envs, 2000, "MlpPolicy", None, {}, kwargs)
     assert planned_steps(params, start) == planned
 
@@ -755,3 +760,19 @@ def test_an_entry_is_checked_on_as_many_environments_as_the_run_steps(tmp_path):
     path.write_text(yaml.safe_dump({ENV_ID: entry | {"n_envs": 1, "n_steps": 1, "batch_size": 1}}))
     with pytest.raises(ValueError, match="PPO refuses it"):
         resolve(TrainSettings(hyperparams=str(path)))
+
+
+@pytest.mark.parametrize(("algo", "kwargs"), [("ppo", {"n_steps": 48, "batch_size": 32}), ("sac", {"train_freq": 64})])
+def test_planned_steps_agrees_with_stable_baselines3_itself(algo, kwargs):
+    """The rule, held against the library on a small standard env (2 envs, 100 steps asked)."""
+    from stable_baselines3 import PPO, SAC
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from microg_env.learning.train import planned_steps
+
+    venv = make_vec_env("Pendulum-v1", n_envs=2, seed=0)
+    extra = {"learning_starts": 1000, "buffer_size": 1000} if algo == "sac" else {}
+    model = {"ppo": PPO, "sac": SAC}[algo]("MlpPolicy", venv, seed=0, device="cpu", **kwargs, **extra)
+    model.learn(100)
+    params = hp.Hyperparams(algo, ENV_ID, 2, 100, "MlpPolicy", None, {}, kwargs)
+    assert planned_steps(params, 0) == model.num_timesteps > 100

@@ -14,6 +14,7 @@ threads), each controller driving its rigs in one vectorised call, the ideal ref
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -24,6 +25,7 @@ from microg_env.analysis.evaluate import Summary, finite_mean, summarise
 from microg_env.analysis.metrics import COMPARED_WINDOW, RunMetrics, contacts
 from microg_env.analysis.paired import Paired, paired
 from microg_env.analysis.trajectory import Trajectory
+from microg_env.controllers.registry import CONTROLLER_NAMES, check_controller_name
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.scenarios import Scenario, comparison_scenarios
 
@@ -122,6 +124,7 @@ class Comparison:
         (a policy folder's path becomes a short name in tables and figures)."""
         check_labels(labels, self.controllers)
         shown = {run: label for label, run in labels.items()}
+        ran = {label: self.labels.get(run, run) for label, run in labels.items()}  # what ran, through earlier labels
 
         def name(controller: str) -> str:
             return shown.get(controller, controller)
@@ -131,7 +134,7 @@ class Comparison:
             controllers=tuple(map(name, self.controllers)),
             results=[replace(r, case=replace(r.case, controller=name(r.case.controller))) for r in self.results],
             reference=None if self.reference is None else name(self.reference),
-            labels={**self.labels, **labels},
+            labels={name: run for name, run in self.labels.items() if name not in shown} | ran,
         )
 
     def runs(self, controller: str, scenario: str | None = None) -> list[CaseResult]:
@@ -214,13 +217,22 @@ class Comparison:
         }
 
 
+#: What a label may be: words of letters, digits, ``_ . + -``, single spaces between (a name that
+#: reads in a Markdown table cell and a figure's legend).
+LABEL_PATTERN = re.compile(r"[\w.+-]+( [\w.+-]+)*")
+
+
 def check_labels(labels: Mapping[str, str], controllers: Sequence[str]) -> None:
-    """Raise ValueError unless each label names one of ``controllers``, once, with a new short name."""
+    """Raise ValueError unless each label names one of ``controllers``, once, with a new short name:
+    not another controller's, nor a controller's the registry knows (``oracle`` on ``adaptive``'s
+    results would publish them as the oracle's)."""
     for label, run in labels.items():
         if run not in controllers:
             raise ValueError(f"label {label}={run}: {run!r} is not one of the controllers {', '.join(controllers)}")
-        if not label.strip() or "," in label or (label in controllers and label != run):
-            raise ValueError(f"label {label}={run}: {label!r} is empty, has a comma or names another controller")
+        if not LABEL_PATTERN.fullmatch(label):
+            raise ValueError(f"label {label!r}={run}: a name is letters, digits, '_', '.', '+', '-' and single spaces")
+        if label != run and (label in controllers or label in CONTROLLER_NAMES):
+            raise ValueError(f"label {label}={run}: {label!r} names another controller")
     if len(set(labels.values())) < len(labels):
         raise ValueError(f"label: a controller is given two names ({', '.join(labels)})")
 
@@ -241,8 +253,6 @@ def compare(
     """Run every controller on every scenario and seed; ``progress(fraction)`` as episodes advance;
     ``reference``: one of ``controllers``, the others paired against it; ``sensor_set``: the rig's
     sensors ("paper": no pad force, no accelerometer)."""
-    from microg_env.controllers.registry import check_controller_name
-
     known = comparison_scenarios()
     names = tuple(known) if scenarios is None else tuple(scenarios)
     for name in names:

@@ -135,7 +135,8 @@ def render_markdown(c: Comparison) -> str:
         "",
         f"Figures: `x_landing.png` (x around the first touchdown, first seed), `metrics.png` (each metric's "
         f"ratio to `{plot_reference(c)}`'s on the same episodes, with its 95 % interval; a ratio beyond "
-        f"{OFF_SCALE:g} is an arrow with its value). Every case's values: `comparison.json`.",
+        f"{OFF_SCALE:g} is an arrow with its value, an interval running past the panel ends in one). Every case's "
+        "values: `comparison.json`.",
         "",
     ]
     return "\n".join(lines)
@@ -183,8 +184,8 @@ def render_figures(c: Comparison) -> dict[str, object]:
 
 
 #: A ratio past this many times the reference's mean is drawn as an arrow at the panel's edge with
-#: its value written (and intervals are cut here), so that the PID's 30 times does not flatten the
-#: sub-µm controllers' intervals around 1.
+#: its value written, and an interval reaching past it ends in an arrow at the edge, so that the
+#: PID's 30 times does not flatten the sub-µm controllers' intervals around 1.
 OFF_SCALE = 4.0
 
 
@@ -222,21 +223,21 @@ def paired_figure(c: Comparison, size: tuple[float, float] | None = None):
                 ax.plot(right, row, ">", color=color, ms=7)
                 ax.annotate(f"{p.ratio:.3g}×", (right, row), xytext=(-6, 5), textcoords="offset points", ha="right")
                 continue
-            ax.errorbar(
-                p.ratio,
-                row,
-                xerr=[[p.ratio - p.ratio_low], [min(p.ratio_high, right) - p.ratio]],
-                fmt="o",
-                color=color,
-                capsize=3,
-            )
+            cut = p.ratio_high > right  # the interval runs on past the panel: it ends in an arrow there
+            high = right if cut else p.ratio_high
+            ax.errorbar(p.ratio, row, xerr=[[p.ratio - p.ratio_low], [high - p.ratio]], fmt="o", color=color, capsize=3)
+            if cut:
+                ax.plot(right, row, ">", color=color, ms=5)
         ax.axvline(1.0, color="k", lw=0.8)
         ax.set_xlim(left, right)
         ax.set_title(f"{quantity.label} [{quantity.unit}]", fontsize=9)
         ax.set_xlabel(f"ratio to {reference}'s mean", fontsize=8)
         ax.grid(alpha=0.3, axis="x")
     panels[0].set_yticks(range(len(others)), others)
-    panels[0].set_ylim(len(others) - 0.5, -0.5)
+    panels[0].set_ylim(max(len(others), 1) - 0.5, -0.5)
+    if not others:
+        for ax in panels:
+            ax.text(0.5, 0.5, "one controller: nothing to pair", ha="center", va="center", transform=ax.transAxes)
     figure.suptitle(
         f"Paired against {reference} on the same {_count(len(c.scenarios), 'scenario')} × "
         f"{_count(len(c.seeds), 'seed')}{PLANT_TITLES[c.randomize]}:\n"

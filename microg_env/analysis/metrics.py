@@ -128,7 +128,7 @@ class RunMetrics:
     #: The same descents as the lander's accelerometer reports them: its mean reading over each
     #: stage's fit window (bias and noise included; how an experiment without a position fit sees it).
     accelerometer_descent_accel_m_s2: list[float]
-    #: Per weight placed in flight, in order, its placement time minus the reference's, s.
+    #: Per weight placed in flight (``in_flight_weights``), its placement time minus the reference's, s.
     placement_delay_s: list[float]
     flexible_unit_excursion_free_fall_m: float
     flexible_unit_excursion_collision_m: float
@@ -259,13 +259,13 @@ def compute_metrics(traj: Trajectory, reference: Trajectory) -> RunMetrics:
         for name in _PER_STAGE:
             unavailable[f"{name}[{i}]"] = reason
     delays = []
-    rig_times, ideal_times = placement_times(traj), placement_times(reference)
-    for i in range(sum(load.height_m is not None for load in traj.scenario.loads)):
-        if i < len(rig_times) and i < len(ideal_times):
-            delays.append(rig_times[i] - ideal_times[i])
-            continue
-        delays.append(math.nan)
-        unavailable[f"placement_delay_s[{i}]"] = f"the run or its reference ended before weight {i + 1} in flight"
+    for i, weight in enumerate(in_flight_weights(traj.scenario)):
+        delay = placement_time(traj, weight) - placement_time(reference, weight)
+        if not math.isfinite(delay):
+            unavailable[f"placement_delay_s[{i}]"] = (
+                f"the run or its reference ended before weight {weight + 1} was placed"
+            )
+        delays.append(delay)
     rig, ideal_landing = landing(traj), landing(reference)
     unavailable |= rig.unavailable
     unavailable |= {f"reference_{name}": reason for name, reason in ideal_landing.unavailable.items()}
@@ -330,9 +330,16 @@ MEASURED_METRICS = tuple(
 )
 
 
-def placement_times(traj: Trajectory) -> list[float]:
-    """Times the weights placed after the start were placed, s (the samples where the placed load grows)."""
-    return [float(traj.time_s[k]) for k in np.flatnonzero(np.diff(traj.placed_load_kg) > 0) + 1]
+def in_flight_weights(scenario) -> list[int]:
+    """Indices (in ``scenario.loads``) of the weights placed in flight, at a height, not at t = 0."""
+    return [i for i, load in enumerate(scenario.loads) if load.height_m is not None]
+
+
+def placement_time(traj: Trajectory, weight: int) -> float:
+    """When weight ``weight`` (an index of the schedule's loads) was placed, s: the first sample of
+    its stage or a later one (weights placed together share the sample); NaN if never."""
+    placed = np.flatnonzero(traj.stage >= weight)
+    return float(traj.time_s[placed[0]]) if placed.size else math.nan
 
 
 def x_change_after(traj: Trajectory, touchdown_s: float, window_s: float) -> float:

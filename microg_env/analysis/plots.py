@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
-from microg_env.analysis.metrics import COMPARED_WINDOW, INSTANT_WINDOWS_S, contacts, placement_times
+from microg_env.analysis.metrics import (
+    COMPARED_WINDOW,
+    INSTANT_WINDOWS_S,
+    contacts,
+    in_flight_weights,
+    placement_time,
+)
 from microg_env.analysis.trajectory import Trajectory
 from microg_env.files import atomic_path
 
@@ -44,15 +51,24 @@ def run_events(trajectory: Trajectory) -> dict[str, list[float]]:
     """Times of the weights placed after the start, the touchdowns and the lift-offs, s."""
     found = contacts(trajectory)
     return {
-        "weight placed": placement_times(trajectory),
+        "weight placed": sorted(
+            {
+                t
+                for t in (placement_time(trajectory, w) for w in in_flight_weights(trajectory.scenario))
+                if math.isfinite(t)
+            }
+        ),
         "touchdown": [c.touchdown_s for c in found],
         "lift-off": [c.liftoff_s for c in found if c.liftoff_s == c.liftoff_s],
     }
 
 
 def envelope(t: np.ndarray, y: np.ndarray, bins: int = ENVELOPE_BINS):
-    """(bin centres, minimum, mean, maximum) of ``y`` over equal time bins (fewer if few samples)."""
-    edges = np.linspace(t[0], t[-1], min(bins, len(t)) + 1)
+    """(bin centres, minimum, mean, maximum) of ``y`` over equal time bins; with no more samples
+    than bins, each sample is its own (at its own time)."""
+    if len(t) <= bins:
+        return t, y, y, y
+    edges = np.linspace(t[0], t[-1], bins + 1)
     index = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, len(edges) - 2)
     used = np.unique(index)
     low = np.full(len(edges) - 1, np.inf)
@@ -99,6 +115,7 @@ def run_figure(trajectory: Trajectory, reference: Trajectory, title: str, size=(
         _zoom(zoom, trajectory, events["touchdown"][0])
     else:
         zoom.set_axis_off()
+        zoom.text(0.5, 0.5, "no touchdown in this run: nothing to zoom on", ha="center", va="center")
     figure.align_ylabels()
     figure.suptitle(title)
     return figure

@@ -10,6 +10,7 @@ in real time; the file is written atomically when the run ends.
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +29,27 @@ INSET_S, INSET_SAMPLE_S, INSET_SIZE = 4.0, 0.005, (200, 120)
 X_COLOUR, FORCE_COLOUR = (255, 196, 0), (80, 200, 255)
 
 
+def display_opens() -> bool:
+    """Whether GLFW can open this process's display (``DISPLAY`` may name one that is not there)."""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return False
+    import glfw
+
+    reporting, glfw.ERROR_REPORTING = glfw.ERROR_REPORTING, "ignore"  # a failure is an answer here
+    try:
+        opened = bool(glfw.init())
+        if opened:
+            glfw.terminate()
+        return opened
+    finally:
+        glfw.ERROR_REPORTING = reporting
+
+
 def check_video_support(path: Path) -> None:
     """Raise ValueError now (not after the run) if ``path``'s format cannot be written here, and pick
-    EGL for headless rendering where no display and no ``MUJOCO_GL`` is set (read when the first
-    frame is rendered)."""
-    if "MUJOCO_GL" not in os.environ and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+    EGL for headless rendering where no ``MUJOCO_GL`` is set and no display opens (read when the
+    first frame is rendered)."""
+    if "MUJOCO_GL" not in os.environ and not display_opens():
         os.environ["MUJOCO_GL"] = "egl"
     if path.suffix.lower() == ".mp4":
         try:

@@ -10,16 +10,15 @@ run is refused before anything starts (``microg run --video`` renders headless i
 from __future__ import annotations
 
 import os
-import sys
 import threading
 import time
 from typing import Any
 
 import numpy as np
 
-from microg_env.analysis.video import INSET_S, INSET_SAMPLE_S
+from microg_env.analysis.video import INSET_S, INSET_SAMPLE_S, display_opens
 
-#: How often the window is redrawn, Hz of wall-clock time.
+#: How often the window is redrawn at most, Hz of wall-clock time.
 FRAME_RATE_HZ = 60.0
 
 
@@ -28,11 +27,13 @@ class WindowClosed(Exception):
 
 
 def check_display() -> None:
-    """Raise ValueError on a machine the viewer cannot open a window on (GLFW would abort)."""
+    """Raise ValueError on a machine the viewer cannot open a window on (GLFW would abort or warn)."""
     if os.environ.get("MUJOCO_GL", "glfw").lower() in {"egl", "osmesa"}:
         raise ValueError(f"microg view needs a window, but MUJOCO_GL is {os.environ['MUJOCO_GL']!r}; unset it")
-    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        raise ValueError("microg view needs a display and DISPLAY is not set (headless: microg run --video FILE)")
+    if not display_opens():
+        shown = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+        where = f"display {shown!r} does not open" if shown else "DISPLAY is not set"
+        raise ValueError(f"microg view needs a display and {where} (headless: microg run --video FILE)")
 
 
 class LiveView:
@@ -45,7 +46,7 @@ class LiveView:
         self.history: list[tuple[float, float, float]] = []  # (t s, x m, pad force N)
         self._threads: list[threading.Thread] = []
         self._start_wall = 0.0
-        self._next_frame_s = 0.0
+        self._next_frame_wall = 0.0
 
     def __call__(self, env, info: dict[str, Any]) -> None:
         t = info["time_s"]
@@ -53,16 +54,17 @@ class LiveView:
             self.history.append((t, info["x_m"], info["pad_force_n"]))
         if self.viewer is None:
             self._open(env)
-        if t + 1e-9 < self._next_frame_s:
-            return
-        if not self.viewer.is_running():
-            raise WindowClosed
-        self._next_frame_s = t + self.speed / FRAME_RATE_HZ
-        self.viewer.set_texts(self._texts(info))
-        self.viewer.set_figures(self._figures())
-        self.viewer.sync()
+        wall = time.perf_counter() - self._start_wall
+        if wall >= self._next_frame_wall:  # frames by the wall clock: a slow window never slows the run more
+            if not self.viewer.is_running():
+                raise WindowClosed
+            self.viewer.set_texts(self._texts(info, wall))
+            self.viewer.set_figures(self._figures())
+            self.viewer.sync()
+            # the next frame a frame's time after this one ends (a window slower than the rate skips frames)
+            self._next_frame_wall = time.perf_counter() - self._start_wall + 1.0 / FRAME_RATE_HZ
         ahead = t / self.speed - (time.perf_counter() - self._start_wall)
-        if ahead > 0:
+        if ahead > 0:  # the simulation is ahead of the asked pace: wait for the clock
             time.sleep(ahead)
 
     def _open(self, env) -> None:
@@ -70,24 +72,30 @@ class LiveView:
 
         before = set(threading.enumerate())
         model = env.unwrapped.model
-        self.viewer = mujoco.viewer.launch_passive(model, env.unwrapped.data, show_left_ui=False, show_right_ui=False)
+        try:
+            self.viewer = mujoco.viewer.launch_passive(
+                model, env.unwrapped.data, show_left_ui=False, show_right_ui=False
+            )
+        except RuntimeError as error:  # macOS: the passive viewer runs only under mjpython
+            raise ValueError(f"microg view: {error}") from None
         self._threads = [thread for thread in threading.enumerate() if thread not in before]
         with self.viewer.lock():  # the rig's side camera, as in the videos
             self.viewer.cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
             self.viewer.cam.fixedcamid = model.camera("side").id
         self._start_wall = time.perf_counter()
 
-    def _texts(self, info: dict[str, Any]):
+    def _texts(self, info: dict[str, Any], wall_s: float):
         import mujoco
 
         left = "\n".join(("time", "foot height", "x", "pad force", "speed"))
+        achieved = info["time_s"] / wall_s if wall_s > 0 else self.speed
         right = "\n".join(
             (
                 f"{info['time_s']:.2f} s",
                 f"{info['foot_height_m'] * 1e3:.2f} mm",
                 f"{info['x_m'] * 1e6:+.3f} um",  # MuJoCo's font has no µ
                 f"{info['pad_force_n']:.2f} N",
-                f"{self.speed:g}x real time",
+                f"{achieved:.2g}x real time (asked {self.speed:g}x)",
             )
         )
         return [

@@ -10,7 +10,7 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-from microg_env.analysis.metrics import INSTANT_WINDOWS_S
+from microg_env.analysis.metrics import INSTANT_WINDOWS_S, in_flight_weights
 from microg_env.cli.common import (
     DROP_OPTIONS,
     RUN_OPTIONS,
@@ -96,7 +96,7 @@ def _cmd_export_mjcf(args: argparse.Namespace) -> int:
 
     output = check_output_file(args.output, "FILE", (".xml",))
     params = replace(RigParams(), pad=pad_from_options(args))
-    step = args.physics_step * 1e-6
+    step = args.physics_step / 1e6  # 10 * 1e-6 is 9.999999999999999e-06, below the 10 us floor
     try:
         check_pad_model(params.pad, params.lander.mass_kg + sum(args.load), step, "export-mjcf")
     except ValueError as error:
@@ -158,8 +158,11 @@ def _print_run(scenario, pad, args: argparse.Namespace, m) -> None:
     print(_format_row("compensation error [%]", m.compensation_error_pct, 1.0, "+.3f"))
     print(_format_row("residual gravity error [g]", m.residual_gravity_g, 1.0, "+.2e"))
     print(_format_row("microgravity level [g]", m.microgravity_level_g, 1.0, ".2e"))
-    if m.placement_delay_s:  # stage k > 1 begins with the (k-1)th weight placed in flight
-        print(_format_row("weight placed later than ideal [s]", [math.nan, *m.placement_delay_s], 1.0, "+.3f"))
+    if m.placement_delay_s:  # under the stage each weight placed in flight begins
+        delays = [math.nan] * stages
+        for weight, delay in zip(in_flight_weights(scenario), m.placement_delay_s, strict=True):
+            delays[weight] = delay
+        print(_format_row("weight placed later than ideal [s]", delays, 1.0, "+.3f"))
     print("flexible unit and drive")
     print(_format_row("max |x| in free fall [um]", [m.flexible_unit_excursion_free_fall_m], 1e6, ".3f"))
     print(_format_row("max |x| during the collision [um]", [m.flexible_unit_excursion_collision_m], 1e6, ".3f"))
@@ -457,7 +460,7 @@ def add_commands(commands) -> None:
         action="append",
         default=[],
         metavar="KG",
-        help="add a test weight",
+        help="add a test weight (in the model, held off the lander as at an episode's start)",
     )
     add_pad_options(export)
     add_physics_step_option(export)

@@ -410,7 +410,7 @@ class _Run:
         venv.seed(env_seed)  # after the model, whose set_random_seed would seed the envs with its own seed
         target = self.params.n_timesteps
         self.planned = planned_steps(self.params, model.num_timesteps)
-        whole = f" (runs to {self.planned}: whole rollouts)" if self.planned != target else ""
+        whole = f" (runs to {self.planned}: whole rollouts)" if self.planned not in (None, target) else ""
         command = (self.state.get("resume_commands") or [""])[-1] if resuming else self.settings.command
         self.log(
             f"{'resumed at' if resuming else 'started'} {model.num_timesteps} steps: {self.params.algo} on "
@@ -597,7 +597,7 @@ def _callback(run: _Run):
         def _on_step(self) -> bool:
             steps = self.num_timesteps
             if run.progress is not None:
-                run.progress(steps, run.planned)
+                run.progress(steps, max(run.planned or run.params.n_timesteps, steps))
             if steps >= self.next_eval:
                 run.evaluate(self.model)
                 self.next_eval = _next_multiple(steps, run.settings.eval_freq)
@@ -609,13 +609,22 @@ def _callback(run: _Run):
     return Callback()
 
 
-def planned_steps(params: hp.Hyperparams, start: int) -> int:
+def planned_steps(params: hp.Hyperparams, start: int) -> int | None:
     """The step count stable-baselines3's ``learn`` stops at from ``start``: the first at or past the
-    target that ends a whole rollout (PPO: n_steps x n_envs) or environment step (SAC: n_envs)."""
+    target that ends a whole rollout, n_envs x n_steps (PPO) or n_envs x train_freq steps (SAC);
+    None where rollouts are counted in episodes (``train_freq: [n, episode]``), whose length varies."""
     left = params.n_timesteps - start
     if left <= 0:
         return start
-    chunk = params.n_envs * (params.algo_kwargs.get("n_steps", 2048) if params.algo == "ppo" else 1)
+    if params.algo == "ppo":
+        per_env = params.algo_kwargs.get("n_steps", 2048)
+    else:
+        frequency = params.algo_kwargs.get("train_freq", 1)
+        count, unit = (frequency, "step") if isinstance(frequency, int) else tuple(frequency)
+        if unit != "step":
+            return None
+        per_env = count
+    chunk = params.n_envs * per_env
     return start + -(-left // chunk) * chunk
 
 

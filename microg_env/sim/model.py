@@ -613,14 +613,19 @@ def export_spec(
     sliders drive the support: its first input is the position reference, its second the speed
     reference (rad/s), both clamped to that range. Without the controller, x is unstable (Eq. 17's
     negative residual stiffness; the guide's static friction holds the balance within ~7 µm), so
-    a slider step sends the lander to a guide stop. Test weights are on the lander.
+    a slider step sends the lander to a guide stop. Test weights are in the model held off the
+    lander, as at an episode's start (massless, drawn faint): give a weight's body its mass to place it.
     """
     spec, pad_contacts = build_spec(params, loads_kg, physics_step_s=physics_step_s)
     rig = Rig(spec.compile(), params, tuple(float(m) for m in loads_kg), pad_contacts, ideal_drive=False)
     data = mujoco.MjData(rig.model)
     home = spec.key("home")
-    rig.reset(data, float(home.qpos[0]))
+    rig.reset(data, float(home.qpos[0]))  # the weights held off the lander, as at an episode's start
     spec.tendon("balancer").springlength = tuple(rig.model.tendon_lengthspring[rig._balancer])
+    for i in range(len(loads_kg)):  # held: massless and drawn faint until a user gives a body its mass
+        body, geom = spec.body(f"load_{i}"), spec.geom(f"load_{i}")
+        body.mass, body.inertia = 0.0, (0.0, 0.0, 0.0)
+        geom.rgba = tuple(rig.model.geom_rgba[rig.model.geom(f"load_{i}").id])
     home.qpos, home.ctrl, home.act = data.qpos.tolist(), data.ctrl.tolist(), data.act.tolist()
     servo = spec.actuator("servo")
     servo.ctrllimited = True
