@@ -1,6 +1,9 @@
 """Test setup: headless rendering (MuJoCo reads MUJOCO_GL when it is first imported), shared facts."""
 
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import gymnasium as gym
 import pytest
@@ -39,3 +42,23 @@ def run_json_keys() -> set[str]:
         "reference_rms_height_error_m",
         "unavailable",
     }
+
+
+@pytest.fixture
+def run_tutorial():
+    """Run a tutorial of docs/tutorials from a folder with ``--out`` that folder; its standard output."""
+    tutorials = Path(__file__).resolve().parents[1] / "docs" / "tutorials"
+
+    def run(name: str, folder: Path, *args: str) -> str:
+        result = subprocess.run(
+            [sys.executable, str(tutorials / name), "--out", str(folder), *args],
+            capture_output=True,
+            text=True,
+            cwd=folder,
+            check=False,
+            timeout=300,
+        )
+        assert result.returncode == 0, result.stderr[-3000:]
+        return result.stdout
+
+    return run

@@ -726,3 +726,13 @@ def test_a_stored_row_says_which_randomisation_drew_its_plant():
         row = result_row(RunResult(RunSpec(randomize=randomize), None, "not run"), {})
         assert row["randomize_preset"] == preset
         assert row["randomize_drive"] is (preset in ("full", "wider"))
+
+
+def test_campaign_tutorial_reads_its_table_into_pandas_and_plots_it(tmp_path, run_tutorial):
+    """docs/tutorials/03_campaign_dataframe.py (here: it starts Ray; see test_tutorials.py)."""
+    out = run_tutorial("03_campaign_dataframe.py", tmp_path, "--duration", "6")
+    assert "12 runs stored, 0 failed" in out
+    table = pq.read_table(tmp_path / "pad-stiffness" / "results.parquet")
+    assert table.num_rows == 12
+    assert sorted(set(table.column("pad.stiffness_n_per_m").to_pylist())) == [3000, 4666, 9387]
+    assert (tmp_path / "pad-stiffness.png").read_bytes()[:4] == b"\x89PNG"
