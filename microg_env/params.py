@@ -264,7 +264,12 @@ class BalancerParams:
 
 @dataclass(frozen=True)
 class ScrewStageParams:
-    """Stroke-amplification mechanism: belt, ball screw and floating support (Section 4.1)."""
+    """Stroke-amplification mechanism: belt, ball screw and floating support (Section 4.1).
+
+    Assumption: belt and screw are rigid (the motor angle sets the support's position exactly through
+    ``gear_rad_per_m``). The paper gives no stiffness for either; a transmission compliance is not
+    modelled yet, so its effect on the excursions is not measured here.
+    """
 
     #: Derived: 1250 mm/s maximum vertical speed at the motor's 1500 rpm through a 1:1 belt.
     lead_m: float = 0.05
@@ -303,6 +308,12 @@ class ScrewStageParams:
 class ServoParams:
     """Yaskawa servo drive and motor (Section 4.1) with its own speed loop.
 
+    Source of the rated numbers: Section 4.1 names "the servo motor SGD7S-550A" with 7.5 kW, 48 N m
+    and 1500 rpm. SGD7S is Yaskawa's Sigma-7 SERVOPACK (the drive), not a motor, and its 550A code
+    is, in Yaskawa's naming, a 5.5 kW model; the stated 7.5 kW / 48 N m / 1500 rpm are those of a
+    7.5 kW, 1500 rpm Sigma-7 motor. The model takes the motor numbers the paper states; what the
+    drive would add (its own current limit) is not modelled beyond ``peak_torque_n_m``.
+
     The drive runs a PI speed loop on its speed reference; with the position reference the
     integral of the speed reference, torque = Kv J (w_ref - w) + (Kv J / Ti) (theta_ref - theta),
     realised with MuJoCo's ``dcmotor`` on-board controller (kd = Kv J, kp = Kv J / Ti). The drive
@@ -321,7 +332,9 @@ class ServoParams:
     torque_constant_n_m_per_a: float = 0.88  # assumption: 48 N m at ~55 A rated current
     resistance_ohm: float = 0.08  # assumption: winding resistance of a 200 V, 7.5 kW motor
     bus_voltage_v: float = 283.0  # derived: 200 V AC class drive, sqrt(2) x 200 V DC bus
-    #: Assumption: speed-loop gain Kv of a tuned Sigma-7 drive (factory default 40 Hz).
+    #: Assumption: speed-loop gain Kv of a tuned Sigma-7 drive; the factory default is 40 Hz, and the
+    #: paper gives none. It matters: the PID's x at the collision is 22.6 um at 50 Hz against 9.9 at
+    #: 100 Hz (docs/studies/period-bandwidth).
     speed_loop_gain_hz: float = 100.0
     speed_integral_time_s: float = 0.01  # assumption: Ti, ~ 4 / (2 pi Kv) rounded up
     #: Assumption: the Sigma-7's first-stage torque reference filter at its factory default
