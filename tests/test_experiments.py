@@ -4,6 +4,7 @@ separately started cluster)."""
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -152,6 +153,16 @@ def test_a_ruler_zero_offset_moves_the_lander_and_delays_the_next_weight():
     assert offset.metrics.placement_delay_s[0] == pytest.approx(3.9, abs=0.2)
 
 
+def test_the_tuned_pid_loses_the_lander_on_the_drives_factory_default_speed_loop():
+    """Why the sensitivity study's speed loop starts at 50 Hz: at the Sigma-7's factory default 40 Hz
+    the PID tuned for the assumed 100 Hz drives x to the guide's stroke limit on the nominal rig."""
+    lost, kept = run_all(
+        [RunSpec("condition-1", duration_s=8.0, overrides={"servo.speed_loop_gain_hz": hz}) for hz in (40.0, 50.0)]
+    )
+    assert lost.metrics.termination_reason == "guide_stroke_limit"
+    assert kept.metrics.termination_reason is None
+
+
 def test_weights_placed_together_each_get_their_delay():
     """Two weights at one height were one rise of the placed load: the second read 'the run ended
     before weight 2' though it had not."""
@@ -161,6 +172,55 @@ def test_weights_placed_together_each_get_their_delay():
     assert metrics.placement_delay_s[0] == metrics.placement_delay_s[1]
     assert abs(metrics.placement_delay_s[0]) < 1e-3
     assert not any(name.startswith("placement_delay_s") for name in metrics.unavailable)
+
+
+def test_a_morris_design_moves_one_assumption_at_a_time_over_its_range(tmp_path):
+    """samples: {method: morris}: trajectories x (keys + 1) points per grid point and seed, each
+    step of a trajectory moving exactly one key by one grid step, a loguniform key on a log grid."""
+    path = tmp_path / "m.yml"
+    path.write_text(
+        "name: m\n"
+        "base: {scenario: condition-2, duration_s: 0.3}\n"
+        "sweep: {controller: [pid, feedforward]}\n"
+        "samples:\n"
+        "  {method: morris, trajectories: 3, levels: 4, seed: 2,\n"
+        "   draw: {servo.speed_loop_gain_hz: {uniform: [40, 200]},\n"
+        "          sensors.ruler_noise_m: {loguniform: [1e-9, 1e-7]}}}\n"
+        "seeds: [1000]\n"
+    )
+    campaign = Campaign.load(path)
+    design = campaign.sample_points()
+    assert len(design) == 3 * (2 + 1)
+    points = [(p["servo.speed_loop_gain_hz"], p["sensors.ruler_noise_m"]) for p in design]
+    runs = campaign.runs()  # a point two trajectories share is run once
+    assert len(runs) == 2 * len(set(points))
+    assert len({r.spec.hash for r in runs}) == len(runs)
+    for speed, _ in points:  # a grid of 4 levels over [40, 200]
+        assert min(abs(speed - level) for level in np.linspace(40.0, 200.0, 4)) < 1e-9
+    for level in {p[1] for p in points}:  # a log grid: 1e-9 x 100^(i/3)
+        exponent = math.log(level / 1e-9) / math.log(100.0) * 3
+        assert exponent == pytest.approx(round(exponent), abs=1e-9)
+    for trajectory in range(3):
+        steps = points[3 * trajectory : 3 * trajectory + 3]
+        for a, b in itertools.pairwise(steps):
+            assert sum(x != y for x, y in zip(a, b, strict=True)) == 1  # one key at a time
+    np.testing.assert_array_equal(campaign.morris_design(), Campaign.load(path).morris_design())  # repeatable
+
+
+@pytest.mark.parametrize(
+    ("samples", "message"),
+    [
+        ("{method: morris, trajectories: 3, count: 4, draw: {qzs.guide_friction_n: {uniform: [0.1, 0.2]}}}", "count"),
+        ("{method: morris, trajectories: 3, draw: {qzs.guide_friction_n: {normal: [0.1, 0.02]}}}", "uniform or log"),
+        ("{method: morris, trajectories: 3, levels: 3, draw: {qzs.guide_friction_n: {uniform: [0.1, 0.2]}}}", "even"),
+        ("{method: sobol, count: 3, draw: {qzs.guide_friction_n: {uniform: [0.1, 0.2]}}}", "samples.method"),
+    ],
+)
+def test_a_bad_morris_design_is_named(tmp_path, samples, message):
+    path = tmp_path / "m.yml"
+    path.write_text(f"name: m\nbase: {{scenario: condition-2, duration_s: 0.3}}\nsamples: {samples}\n")
+    with pytest.raises(ValueError, match=message):
+        Campaign.load(path)
 
 
 def test_campaign_expands_grid_linked_keys_samples_and_seeds(tmp_path):

@@ -35,7 +35,7 @@ def _numbers(value, prefix=""):
 
 
 def test_every_study_page_is_of_its_shipped_campaign_file():
-    assert STUDIES == ["fifty-gram-floor", "landing-monte-carlo", "period-bandwidth"]
+    assert STUDIES == ["fifty-gram-floor", "landing-monte-carlo", "period-bandwidth", "sensitivity"]
     for study in STUDIES:
         stored = json.loads((REPO / "docs" / "studies" / study / "campaign.json").read_text())
         shipped = Campaign.load(REPO / "studies" / f"{study}.yml")

@@ -19,13 +19,20 @@ Monte Carlo draws (``samples:``) and seeds, expanded to the campaign's runs.
       draw:
         qzs.guide_friction_n: {uniform: [0.1, 0.5]}
         pad.stiffness_n_per_m: {loguniform: [4666, 9387]}
+    # or a Morris design for a global sensitivity analysis (SALib): trajectories x (keys + 1)
+    # points, each moving one key at a time on a grid of levels over its range
+    #   samples: {method: morris, trajectories: 8, levels: 4, seed: 0,
+    #             draw: {servo.speed_loop_gain_hz: {uniform: [40, 200]}, ...}}
     seeds: {first: 1000, count: 3}  # or a list
     report: period-bandwidth        # a study page to write (microg_env.experiments.studies)
 
 A key names a RunSpec field (``controller``, ``control_period_us``, ...), a PID gain
 (``gains.ki_per_s2``), an imperfection (``imperfections.friction``) or a rig parameter by dotted
 path (``qzs.guide_friction_n``). Keys joined by commas vary together: each value is a list of
-one value per key. Runs = grid points x samples x seeds.
+one value per key. Runs = grid points x samples x seeds. A Morris design takes only uniform and
+loguniform ranges (a loguniform key is gridded in its logarithm) and is drawn by
+:func:`morris_design`, whose unit coordinates the sensitivity page reads back
+(:meth:`Campaign.morris_design`).
 """
 
 from __future__ import annotations
@@ -155,9 +162,23 @@ class Campaign:
         drawn = tuple(self.samples["draw"]) if self.samples else ()
         return tuple(k for key in self.sweep for k in _keys(key)) + drawn
 
+    @property
+    def _morris(self) -> bool:
+        return bool(self.samples) and self.samples.get("method", "random") == "morris"
+
+    def morris_design(self) -> np.ndarray:
+        """The unit-cube points of this campaign's Morris design (``samples: {method: morris}``)."""
+        return morris_design(self.samples)
+
+    def sample_points(self) -> list[dict[str, Any]]:
+        """The sampled points in order, each a mapping of key to value (a Morris design's rows,
+        repeats included, where :meth:`runs` runs a repeated point once)."""
+        return _draws(self.samples)
+
     def runs(self) -> list[Run]:
-        """Every run: grid points x samples x seeds, in that nesting order."""
-        draws = self.samples["count"] if self.samples else 1
+        """Every run: grid points x samples x seeds, in that nesting order (a point a Morris design
+        repeats, once)."""
+        draws = sample_count(self.samples) if self.samples else 1
         total = math.prod(len(v) for v in self.sweep.values()) * draws * len(self.seeds)
         if total > MAX_RUNS:
             raise ValueError(f"{total} runs, more than {MAX_RUNS}")
@@ -176,11 +197,20 @@ class Campaign:
                 fields_ = _spec_fields(self.base, values)
                 for seed in self.seeds:
                     spec = RunSpec.from_dict(fields_ | {"seed": seed})
+                    if spec.hash in seen and self._morris:  # trajectories may share a point: run it once
+                        continue
                     if spec.hash in seen:
                         raise ValueError(f"runs {seen[spec.hash]} and {values} are the same run (seed {seed})")
                     seen[spec.hash] = values
                     out.append(Run(spec, values))
         return out
+
+
+def sample_count(samples: Mapping[str, Any]) -> int:
+    """Points ``samples:`` draws: ``count``, or a Morris design's trajectories x (keys + 1)."""
+    if samples.get("method", "random") == "morris":
+        return samples["trajectories"] * (len(samples["draw"]) + 1)
+    return samples["count"]
 
 
 def _check_keys(where: str, mapping: Mapping) -> None:
@@ -237,12 +267,25 @@ def _seeds(value: object) -> tuple[int, ...]:
     return seeds
 
 
+#: The ways ``samples:`` draws its points: independent draws, or a Morris design.
+SAMPLING_METHODS = ("random", "morris")
+
+
 def _check_samples(samples: object) -> None:
     validate.instance("samples", samples, Mapping)
-    unknown = sorted(set(samples) - {"count", "seed", "draw"})
+    method = samples.get("method", "random")
+    validate.choice("samples.method", method, SAMPLING_METHODS)
+    allowed = {"method", "seed", "draw"} | ({"count"} if method == "random" else {"trajectories", "levels"})
+    unknown = sorted(set(samples) - allowed)
     if unknown:
-        raise ValueError(f"samples: unknown key {shown(unknown[0])}; known: count, seed, draw")
-    validate.integer("samples.count", samples.get("count"), 1, MAX_RUNS)
+        raise ValueError(f"samples: unknown key {shown(unknown[0])}; known for {method}: {', '.join(sorted(allowed))}")
+    if method == "random":
+        validate.integer("samples.count", samples.get("count"), 1, MAX_RUNS)
+    else:
+        validate.integer("samples.trajectories", samples.get("trajectories"), 2, MAX_RUNS)
+        levels = validate.integer("samples.levels", samples.get("levels", 4), 2, 100)
+        if levels % 2:
+            raise ValueError(f"samples.levels must be even (Morris's one-step grid), got {levels}")
     validate.integer("samples.seed", samples.get("seed", 0), 0, 2**32 - 1)
     draw = samples.get("draw")
     if not isinstance(draw, Mapping) or not draw:
@@ -259,6 +302,8 @@ def _check_samples(samples: object) -> None:
             raise ValueError(
                 f"samples.draw.{key}: unknown distribution {shown(kind)}; known: {', '.join(DISTRIBUTIONS)}"
             )
+        if method == "morris" and kind not in ("uniform", "loguniform"):
+            raise ValueError(f"samples.draw.{key}: a Morris design takes uniform or loguniform ranges, got {kind}")
         if kind == "choice":
             if not isinstance(args, list) or not args:
                 raise ValueError(f"samples.draw.{key}.choice must be a non-empty list, got {shown(args)}")
@@ -274,8 +319,32 @@ def _check_samples(samples: object) -> None:
             raise ValueError(f"samples.draw.{key}.{kind} must be {DISTRIBUTIONS[kind]} (low < high), got {shown(args)}")
 
 
+def morris_design(samples: Mapping[str, Any]) -> np.ndarray:
+    """A Morris design's points in the unit cube, (trajectories x (keys + 1), keys), keys in file
+    order (SALib's sampler, seeded ``seed``)."""
+    from SALib.sample import morris
+
+    keys = list(samples["draw"])
+    problem = {"num_vars": len(keys), "names": keys, "bounds": [[0.0, 1.0]] * len(keys)}
+    return morris.sample(
+        problem, samples["trajectories"], num_levels=samples.get("levels", 4), seed=samples.get("seed", 0)
+    )
+
+
+def _from_unit(unit: np.ndarray, distribution: Mapping[str, list]) -> np.ndarray:
+    ((kind, (low, high)),) = distribution.items()
+    if kind == "loguniform":
+        return np.exp(math.log(low) + unit * (math.log(high) - math.log(low)))
+    return low + unit * (high - low)
+
+
 def _draws(samples: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """``count`` draws of every key, from one generator seeded ``seed`` (keys drawn in file order)."""
+    """The sampled points: ``count`` draws of every key from one generator seeded ``seed`` (keys
+    drawn in file order), or a Morris design's points (:func:`morris_design`) in the keys' ranges."""
+    if samples.get("method", "random") == "morris":
+        unit = morris_design(samples)
+        columns = {key: _from_unit(unit[:, j], d) for j, (key, d) in enumerate(samples["draw"].items())}
+        return [{key: float(columns[key][i]) for key in columns} for i in range(unit.shape[0])]
     rng = np.random.default_rng(samples.get("seed", 0))
     count = samples["count"]
     columns = {}

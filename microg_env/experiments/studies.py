@@ -18,6 +18,7 @@ from microg_env.experiments.spec import RunSpec
 from microg_env.experiments.tuning import RETUNE_KI
 from microg_env.files import write_text
 from microg_env.paper.tables import CONDITIONS, FIFTY_GRAM_LAG_S
+from microg_env.params import RigParams, parameter_paths
 
 #: The paper's 50 g stage (Table 4): measured -0.38 mm/s^2 against the ideal -0.79 (Table 2).
 PAPER_FIFTY_GRAM_MM_S2, PAPER_STAGE_2_MM_S2 = CONDITIONS[3].measured_descent_accel_mm_s2
@@ -456,17 +457,148 @@ def landing_monte_carlo(campaign, table, folder: Path) -> list[str]:
     return lines
 
 
+# -- (d) global sensitivity of the headline numbers ------------------------------------------------
+
+#: The headline quantities the sensitivity page reports: (label, unit, scale, value of a row).
+SENSITIVITY_QUANTITIES = (
+    ("compensation error, stage 1", "%", 1.0, lambda r: _stage(r, "compensation_error_pct")),
+    ("compensation error, stage 2", "%", 1.0, lambda r: _stage(r, "compensation_error_pct", 1)),
+    ("x at the collision (max over contact)", "µm", 1e6, lambda r: _scalar(r, "flexible_unit_excursion_collision_m")),
+    ("x change, 5 ms from touchdown", "µm", 1e6, lambda r: _stage(r, "x_change_after_touchdown_m")),
+    (
+        "peak deformation against the ideal",
+        "%",
+        100.0,
+        lambda r: _scalar(r, "max_deformation_m") / _scalar(r, "reference_max_deformation_m") - 1.0,
+    ),
+)
+
+
+def _scalar(row: dict, key: str) -> float:
+    """A stored metric, NaN where the run did not reach it (stored as null)."""
+    return math.nan if row[key] is None else float(row[key])
+
+
+def _sensitivity_failures(keys, points, failed) -> list[str]:
+    """How many runs were lost per scenario, and per assumption the share lost at each of its levels
+    (over every scenario), the assumption that separates them best first."""
+    lost = sum(sum(flags) for flags in failed.values())
+    total = sum(len(flags) for flags in failed.values())
+    lines = [
+        f"{lost} of {total} runs ended at a stroke limit ("
+        + ", ".join(f"{scenario}: {sum(flags)}" for scenario, flags in failed.items())
+        + ")."
+    ]
+    if not lost:
+        return lines
+    spread = []
+    for key in keys:
+        levels = sorted({point[key] for point in points})
+        shares = []
+        for level in levels:
+            at = [f for flags in failed.values() for point, f in zip(points, flags, strict=True) if point[key] == level]
+            shares.append((level, sum(at) / len(at)))
+        spread.append((max(v for _, v in shares) - min(v for _, v in shares), key, shares))
+    spread.sort(key=lambda item: -item[0])
+    lines += ["", "| assumption | share lost at each of its levels |", "|---|---|"]
+    for _, key, shares in spread:
+        lines.append(f"| `{key}` | " + ", ".join(f"{level:.4g}: {share:.0%}" for level, share in shares) + " |")
+    return lines
+
+
+def sensitivity(campaign, table, folder: Path) -> list[str]:
+    """Each headline quantity's spread over the unpublished assumptions' ranges (the Morris design's
+    points), and the assumptions ranked by Morris's mu* (the mean |elementary effect|: the change of
+    the quantity when one assumption moves across its range by one grid step, scaled to the range)."""
+    from SALib.analyze import morris
+
+    draw = campaign.samples["draw"]
+    keys, levels = list(draw), campaign.samples.get("levels", 4)
+    unit, points = campaign.morris_design(), campaign.sample_points()
+    stored = {(r["scenario"], *(r[key] for key in keys)): r for r in _rows(table)}
+    scenarios = list(dict.fromkeys(run.spec.scenario for run in campaign.runs()))
+    assumed = parameter_paths(RigParams())
+    lines = _header(campaign, table, _command(campaign, folder))
+    lines += [
+        f"A Morris design (SALib): {campaign.samples['trajectories']} trajectories x ({len(keys)} assumptions + 1) "
+        f"points on a {levels}-level grid, each point run on every scenario; one seed, so the spread is the "
+        "assumptions', not the noise's. The ranges:",
+        "",
+        "| assumption | range | as assumed (params.py) |",
+        "|---|---|---|",
+    ]
+    for key, distribution in draw.items():
+        ((kind, (low, high)),) = distribution.items()
+        scale = " (log grid)" if kind == "loguniform" else ""
+        lines.append(f"| `{key}` | {low:g} to {high:g}{scale} | {assumed[key]:g} |")
+    rows_of = {
+        scenario: [stored.get((scenario, *(point[key] for key in keys))) for point in points] for scenario in scenarios
+    }
+    failed = {s: [r is None or r["termination_reason"] is not None for r in rows_of[s]] for s in scenarios}
+    lines += ["", "## Runs the tuned PID lost (ended at a stroke limit)", ""]
+    lines += _sensitivity_failures(keys, points, failed)
+    lines += [
+        "",
+        "## Headline numbers over the ranges, and what drives them",
+        "",
+        "The spread is over the design's points that completed (a grid that covers the ranges, not a probability "
+        "sample): the 5th to 95th percentile. mu* is in the quantity's unit for one assumption moved over its whole "
+        "range, from the trajectories whose every point reached the quantity.",
+        "",
+        "| quantity | scenario | median | 5–95 % | trajectories | largest mu* (the assumption: mu*) |",
+        "|---|---|---|---|---|---|",
+    ]
+    problem = {"num_vars": len(keys), "names": keys, "bounds": [[0.0, 1.0]] * len(keys)}
+    ranking: dict[tuple[str, str], np.ndarray] = {}
+    steps = len(keys) + 1  # points per trajectory
+    for label, unit_name, scale, value in SENSITIVITY_QUANTITIES:
+        for scenario in scenarios:
+            y = np.array([value(r) * scale if r is not None else math.nan for r in rows_of[scenario]], dtype=float)
+            whole = np.isfinite(y).reshape(-1, steps).all(axis=1)  # trajectories that reached it at every point
+            if whole.sum() < 2:
+                continue  # a stage this scenario does not have, or too few trajectories reached it
+            keep = np.repeat(whole, steps)
+            analysed = morris.analyze(problem, unit[keep], y[keep], num_levels=levels, seed=0)
+            mu_star = np.asarray(analysed["mu_star"])
+            ranking[label, scenario] = mu_star
+            top = "; ".join(f"`{keys[j]}`: {mu_star[j]:.3g}" for j in np.argsort(-mu_star)[:3])
+            finite = y[np.isfinite(y)]
+            low, high = np.percentile(finite, [5, 95])
+            lines.append(
+                f"| {label} ({unit_name}) | {scenario} | {np.median(finite):.3g} | {low:.3g} to {high:.3g} | "
+                f"{whole.sum()} of {whole.size} | {top} |"
+            )
+    figure = figure_class()(figsize=(10, 2.2 * len(SENSITIVITY_QUANTITIES)), layout="constrained")
+    panels = figure.subplots(len(SENSITIVITY_QUANTITIES), 1)
+    for ax, (label, unit_name, _, _) in zip(panels, SENSITIVITY_QUANTITIES, strict=True):
+        shown = [s for s in scenarios if (label, s) in ranking]
+        width = 0.8 / max(len(shown), 1)
+        for i, scenario in enumerate(shown):
+            ax.barh(np.arange(len(keys)) + i * width, ranking[label, scenario], height=width, label=scenario)
+        ax.set_yticks(np.arange(len(keys)) + 0.4 - width / 2, keys, fontsize=7)
+        ax.set_xlabel(f"Morris mu* of {label} ({unit_name})", fontsize=8)
+        ax.invert_yaxis()
+        ax.grid(alpha=0.3, axis="x")
+        if shown:
+            ax.legend(fontsize=7)
+    save_figure(figure, folder / "sensitivity.png")
+    lines += ["", "![Morris mu* of each headline quantity, by assumption and scenario](sensitivity.png)", ""]
+    return lines
+
+
 #: The columns (swept or sampled keys) each study's page reads.
 STUDY_COLUMNS: dict[str, tuple[str, ...]] = {
     "period-bandwidth": ("servo.speed_loop_gain_hz",),
     "fifty-gram-floor": tuple(FIFTY_GRAM_ASSUMED),
     "landing-monte-carlo": (),
+    "sensitivity": (),
 }
 #: The study pages by the name a campaign's ``report:`` gives.
 STUDIES: dict[str, Callable[[Any, Any, Path], list[str]]] = {
     "period-bandwidth": period_bandwidth,
     "fifty-gram-floor": fifty_gram_floor,
     "landing-monte-carlo": landing_monte_carlo,
+    "sensitivity": sensitivity,
 }
 
 
