@@ -107,7 +107,7 @@ def test_video_frames_carry_an_inset_of_x_and_the_pad_force():
     video = LandingVideo("unused.gif", "test")
     for k in range(3001):
         t = k * 1e-3
-        video.record({"time_s": t, "x_m": 1e-6 * np.sin(20 * t), "pad_force_n": max(0.0, 50 * np.sin(2 * t))})
+        video.history.record({"time_s": t, "x_m": 1e-6 * np.sin(20 * t), "pad_force_n": max(0.0, 50 * np.sin(2 * t))})
     info = {"time_s": 3.0, "foot_height_m": 0.01, "x_m": 0.0, "pad_force_n": 0.0}
     frame = np.asarray(video._annotated(np.zeros((360, 480, 3), dtype=np.uint8), info).convert("RGB"))
     box = frame[360 - INSET_SIZE[1] - 6 :, 480 - INSET_SIZE[0] - 6 :]
@@ -123,7 +123,7 @@ def test_video_frames_carry_an_inset_of_x_and_the_pad_force():
     assert (frame[70:200, :200] == 0).all()  # nothing drawn over the picture outside the caption and inset
     for k in range(3001, 9001):  # six more seconds: only the last INSET_S are kept in view
         t = k * 1e-3
-        video.record({"time_s": t, "x_m": 0.0, "pad_force_n": 0.0})
+        video.history.record({"time_s": t, "x_m": 0.0, "pad_force_n": 0.0})
     later = np.asarray(video._annotated(np.zeros((360, 480, 3), dtype=np.uint8), info | {"time_s": 9.0}).convert("RGB"))
     assert INSET_S < 6.0
     assert force_rows(later) == 1  # flat: the landing has left the window

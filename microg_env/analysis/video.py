@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +78,26 @@ def _font(size: int):
         return ImageFont.load_default(size=size), "u"
 
 
+class InsetHistory:
+    """x and the pad force over the last INSET_S of a run, one row every INSET_SAMPLE_S: what the
+    video's inset and the live view's plots draw."""
+
+    def __init__(self) -> None:
+        self.rows: deque[tuple[float, float, float]] = deque()  # (t s, x m, pad force N)
+
+    def record(self, info: dict[str, Any]) -> None:
+        """Keep this step if a sample is due, and drop what has left the window."""
+        t = info["time_s"]
+        if not self.rows or t >= self.rows[-1][0] + INSET_SAMPLE_S - 1e-9:
+            self.rows.append((t, info["x_m"], info["pad_force_n"]))
+        while self.rows[0][0] < t - INSET_S:
+            self.rows.popleft()
+
+    def recent(self) -> np.ndarray:
+        """The window's rows, (n, 3)."""
+        return np.array(self.rows, dtype=float).reshape(-1, 3)
+
+
 class LandingVideo:
     """Collects annotated frames from an ``rgb_array`` environment; ``write()`` saves them."""
 
@@ -84,12 +105,12 @@ class LandingVideo:
         self.path, self.title, self.fps = Path(path), title, fps
         self.frames: list[Any] = []
         self._next_s = 0.0
-        self.history: list[tuple[float, float, float]] = []  # (t s, x m, pad force N) for the inset
+        self.history = InsetHistory()
 
     def __call__(self, env, info: dict[str, Any]) -> None:
         """Record x and the pad force; take a frame when simulated time reaches the next one
         (``run_episode``'s ``on_step``)."""
-        self.record(info)
+        self.history.record(info)
         if info["time_s"] + 1e-9 < self._next_s:
             return
         self._next_s += 1.0 / self.fps
@@ -113,15 +134,11 @@ class LandingVideo:
         self._inset(draw, image.width - INSET_SIZE[0] - 6, image.height - INSET_SIZE[1] - 6, info["time_s"])
         return image
 
-    def record(self, info: dict[str, Any]) -> None:
-        if not self.history or info["time_s"] >= self.history[-1][0] + INSET_SAMPLE_S - 1e-9:
-            self.history.append((info["time_s"], info["x_m"], info["pad_force_n"]))
-
     def _inset(self, draw, left: int, top: int, now_s: float) -> None:
         """x (upper half) and the pad force (lower half) over the last INSET_S, newest at the right."""
         width, height = INSET_SIZE
         draw.rectangle((left, top, left + width, top + height), fill=(0, 0, 0))
-        recent = np.array([row for row in self.history if row[0] >= now_s - INSET_S]).reshape(-1, 3)
+        recent = self.history.recent()
         font, micro = _font(10)
         half = height // 2
         x_um, force = recent[:, 1] * 1e6, recent[:, 2]

@@ -14,9 +14,7 @@ import threading
 import time
 from typing import Any
 
-import numpy as np
-
-from microg_env.analysis.video import INSET_S, INSET_SAMPLE_S, display_opens
+from microg_env.analysis.video import INSET_S, InsetHistory, display_opens
 
 #: How often the window is redrawn at most, Hz of wall-clock time.
 FRAME_RATE_HZ = 60.0
@@ -43,15 +41,14 @@ class LiveView:
     def __init__(self, title: str, speed: float = 1.0) -> None:
         self.title, self.speed = title, speed
         self.viewer = None
-        self.history: list[tuple[float, float, float]] = []  # (t s, x m, pad force N)
+        self.history = InsetHistory()
         self._threads: list[threading.Thread] = []
         self._start_wall = 0.0
         self._next_frame_wall = 0.0
 
     def __call__(self, env, info: dict[str, Any]) -> None:
         t = info["time_s"]
-        if not self.history or t >= self.history[-1][0] + INSET_SAMPLE_S - 1e-9:
-            self.history.append((t, info["x_m"], info["pad_force_n"]))
+        self.history.record(info)
         if self.viewer is None:
             self._open(env)
         wall = time.perf_counter() - self._start_wall
@@ -107,8 +104,8 @@ class LiveView:
         """x [µm] and the pad force [N] over the last INSET_S, at the window's bottom right."""
         import mujoco
 
-        now = self.history[-1][0]
-        recent = np.array([row for row in self.history if row[0] >= now - INSET_S]).reshape(-1, 3)
+        recent = self.history.recent()
+        now = recent[-1, 0]
         figures = []
         viewport = self.viewer.viewport
         left, bottom, width, height = (
