@@ -238,18 +238,6 @@ def replace_folder(out: Path, fill: Callable[[Path], None]) -> Path:
     return out
 
 
-def data_folder(installed: str, source: str, probe: str) -> Path:
-    """A data folder of the package: ``microg_env/<installed>`` in a wheel, ``<source>`` of the
-    repository in a source checkout (an editable install); ``probe`` is a file it must hold."""
-    package = Path(__file__).resolve().parent
-    for candidate in (package / installed, package.parent / source):
-        if (candidate / probe).is_file():
-            return candidate
-    raise FileNotFoundError(
-        f"{probe} not found in {package / installed} or {package.parent / source}; the package is incomplete"
-    )
-
-
 def check_writable(folder: Path, option: str, given: str) -> None:
     """ValueError naming ``option`` unless this user can create entries in ``folder``."""
     try:  # the one reliable writability test (root passes os.access on read-only file systems)

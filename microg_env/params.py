@@ -1,7 +1,7 @@
 """Rig parameters: the one source of truth for every physical value, in SI units.
 
 Every value cites the paper (Jia et al., Actuators 2024, 13(9), 361: a table, an equation or a
-section) or is marked ``assumption`` with its reason. The MJCF template in ``mjcf/`` carries the
+section) or is marked ``assumption`` with its reason. The MJCF template in ``assets/`` carries the
 same geometry and masses (a test checks they agree); every force law is built from here by
 :func:`microg_env.sim.model.build_rig`. Change a value with :func:`dataclasses.replace` or, by
 dotted path, with :func:`with_overrides` (``{"pad.stiffness_n_per_m": 8000.0}``).
@@ -27,7 +27,7 @@ GRAVITY_M_S2 = 9.8009
 LOAD_CAPACITY_KG = 620.0
 
 #: Default physics step, s. Chosen by the convergence study in ``benchmarks/convergence.py``
-#: (README, "Physics step"): every reported metric at this step is within 1 % (and 0.02
+#: (docs/model.md, "Physics step"): every reported metric at this step is within 1 % (and 0.02
 #: percentage points of compensation error) of its value at a 4x finer step. It divides all of
 #: the paper's control periods (1000, 500, 200 and 100 us), so they can be compared on one step.
 PHYSICS_STEP_S = 1.0e-4

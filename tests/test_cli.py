@@ -8,6 +8,7 @@ import shutil
 import subprocess
 import sys
 import time
+from importlib.metadata import version
 from pathlib import Path
 
 import mujoco
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 import yaml
 
+import microg_env
 from microg_env import cli
 from microg_env.cli import main
 
@@ -215,7 +217,7 @@ def test_bad_input_is_one_line_naming_the_option_exit_2_and_writes_nothing(args,
     (folder / "broken-policy" / "policy.json").write_text("[1, 2]")
     (folder / "no-network").mkdir()
     (folder / "no-network" / "policy.json").write_text('{"env_kwargs": {}}')
-    (folder / "ppo.yml").write_text((REPO / "training" / "hyperparams" / "ppo.yml").read_text())
+    (folder / "ppo.yml").write_text((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())
     places = {"{dir}": "existing-dir", "{file}": "existing-file", "{readonly}": "read-only"}
     places |= {"{broken_policy}": "broken-policy", "{no_network}": "no-network", "{hyperparams}": "ppo.yml"}
     places |= {"{dangling}": "dangling", "{dirlink}": "dir-link"}
@@ -459,7 +461,7 @@ def test_compare_writes_its_folder_and_replaces_an_earlier_one(tmp_path, capsys)
 def test_train_and_resume_from_the_command_line(tmp_path, capsys):
     import yaml
 
-    entry = yaml.safe_load((REPO / "training" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
     entry |= {"n_envs": 1, "n_steps": 64, "batch_size": 64, "n_epochs": 1, "policy_kwargs": "dict(net_arch=[8])"}
     conf = tmp_path / "ppo.yml"
     conf.write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
@@ -534,6 +536,18 @@ def test_a_bare_microg_prints_its_help(capsys):
     assert "reproduce" in out
 
 
+def test_version_is_the_installed_distributions():
+    """`microg --version` prints the version pip installed, which is the package's __version__."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    result = subprocess.run(
+        [sys.executable, "-m", "microg_env.cli", "--version"], capture_output=True, text=True, check=True
+    )
+    assert result.stdout.strip() == f"microg {microg_env.__version__}"
+    assert version("microg-env") == microg_env.__version__
+
+
 # -- generated bad files: -conf entries, campaign files, policy folders, --resume folders ----------
 
 #: Values no setting takes, put in place of one key's value at a time.
@@ -550,7 +564,7 @@ CAMPAIGN = {
 
 
 def _conf_cases():
-    entry = yaml.safe_load((REPO / "training" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
     for key in CONF_KEYS:
         for value in BAD_VALUES:
             if (key, value) in {("normalize", "true"), ("normalize", "null"), ("env_kwargs", "null")}:
@@ -648,7 +662,7 @@ def test_a_generated_bad_policy_card_is_one_line_naming_the_policy(case, text, t
 def run_folder(tmp_path_factory):
     """A finished 128-step PPO run folder to damage (copies of it)."""
     tmp_path = tmp_path_factory.mktemp("run")
-    entry = yaml.safe_load((REPO / "training" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
     entry |= {"n_envs": 2, "n_steps": 64, "batch_size": 64, "n_epochs": 1, "policy_kwargs": "dict(net_arch=[8])"}
     (tmp_path / "ppo.yml").write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
     args = ["train", "-conf", str(tmp_path / "ppo.yml"), "--timesteps", "128", "--eval-freq", "128"]

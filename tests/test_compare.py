@@ -149,7 +149,7 @@ def test_compare_refuses_a_repeated_scenario_or_controller():
         compare(["pid", "pid"], ["condition-1"])
 
 
-# The shipped policy: how it was made, and that it does what the README says on held-out cases.
+# The shipped policy: how it was made, and that it does what docs/controllers.md says on held-out cases.
 
 
 def test_the_shipped_policy_records_its_training():
@@ -167,7 +167,7 @@ def test_the_shipped_policy_records_its_training():
 
 def test_the_policy_shipped_for_the_registered_task_records_its_training():
     """residual-ppo-adaptive: the best of five seeds of the packaged recipe on
-    MicroGravityLanding-Residual-v1 (the README gives all five)."""
+    MicroGravityLanding-Residual-v1 (docs/controllers.md gives all five)."""
     folder = shipped_policy_folder("residual-ppo-adaptive")
     card = policy_card(folder)
     assert card["command"].startswith("microg train --env MicroGravityLanding-Residual-v1 --seed 4 ")

@@ -366,6 +366,20 @@ def test_store_keeps_one_row_per_run_and_a_retry_supersedes_a_failure(tmp_path):
     assert json.loads(row["spec"]) == spec.as_dict()
 
 
+def test_a_folder_kept_with_its_table_alone_resumes_from_it(tmp_path):
+    """A committed study keeps results.parquet, not its runs/ parts: its rows still count as stored,
+    and a newer part (a failed run retried) still supersedes the table's row."""
+    specs = [RunSpec(**SHORT), RunSpec(**SHORT, seed=1)]
+    store = ResultStore(tmp_path)
+    ok, other = (result_row(r, {}) for r in run_all(specs))
+    store.write([ok, other | {"status": "failed"}])
+    store.export(tmp_path / "results.parquet", [s.hash for s in specs])
+    shutil.rmtree(tmp_path / "runs")
+    assert ResultStore(tmp_path).statuses() == {specs[0].hash: "ok", specs[1].hash: "failed"}
+    store.write([other])
+    assert ResultStore(tmp_path).statuses() == {specs[0].hash: "ok", specs[1].hash: "ok"}
+
+
 CAMPAIGN_200 = """\
 name: resume-test
 base: {scenario: condition-2, duration_s: 0.4}

@@ -34,23 +34,27 @@ def wheel(tmp_path_factory) -> Path:
     return path
 
 
-def test_wheel_contains_the_mjcf(wheel):
+def test_wheel_contains_the_mjcf_and_its_type_marker(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
-    for name in ("scene.xml", "rig.xml", "README.md"):
-        assert f"microg_env/mjcf/{name}" in names
+    for name in ("assets/scene.xml", "assets/rig.xml", "py.typed"):
+        assert f"microg_env/{name}" in names
+
+
+def shipped_folders() -> list[str]:
+    return sorted(p.parent.name for p in (REPO / "microg_env" / "policies").glob("*/policy.json"))
 
 
 def test_wheel_contains_the_hyperparameters_and_the_shipped_policy(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     for name in ("ppo.yml", "sac.yml"):
         assert f"microg_env/hyperparams/{name}" in names
-    shipped = sorted(p.name for p in (REPO / "microg_env" / "policies").glob("*/policy.json"))
-    assert shipped, "no policy is shipped"
-    for folder in (REPO / "microg_env" / "policies").iterdir():
-        if folder.is_dir():
-            for file in folder.iterdir():
-                if file.is_file():
-                    assert f"microg_env/policies/{folder.name}/{file.name}" in names
+    assert shipped_folders(), "no policy is shipped"
+    # What a shipped policy runs and says of itself; its stable-baselines3 files (only to fine-tune) stay out.
+    for name in shipped_folders():
+        for file in ("policy.npz", "policy.json", "training.json", "train.log", "evaluations.json"):
+            assert f"microg_env/policies/{name}/{file}" in names
+        for file in ("model.zip", "vecnormalize.pkl"):
+            assert f"microg_env/policies/{name}/{file}" not in names
 
 
 def _fresh_venv(env_dir: Path, install: list[str], cwd: Path) -> Path:

@@ -34,7 +34,7 @@ RESIDUAL = {"action_mode": "residual", "base_controller": "feedforward", "decisi
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_the_packaged_files_are_the_repositorys_and_parse(algo):
     params = hp.load(algo, ENV_ID)
-    assert Path(params.source).read_bytes() == (REPO / "training" / "hyperparams" / f"{algo}.yml").read_bytes()
+    assert Path(params.source).read_bytes() == (REPO / "microg_env" / "hyperparams" / f"{algo}.yml").read_bytes()
     assert params.env_kwargs["action_mode"] == "residual"
     assert params.normalize is not None
     assert params.normalize["gamma"] == params.algo_kwargs["gamma"]
@@ -186,7 +186,7 @@ def test_a_policy_folder_runs_only_at_its_control_period(tmp_path):
 
 def _tiny_hyperparams(tmp_path: Path, algo: str) -> Path:
     """The packaged entry with a budget a test can afford."""
-    entry = yaml.safe_load((REPO / "training" / "hyperparams" / f"{algo}.yml").read_text())[ENV_ID]
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / f"{algo}.yml").read_text())[ENV_ID]
     entry |= {"n_envs": 2, "policy_kwargs": "dict(net_arch=[16, 16])"}
     entry |= {"n_steps": 64, "batch_size": 64, "n_epochs": 2} if algo == "ppo" else {}
     entry |= {"learning_starts": 50, "buffer_size": 5000, "batch_size": 32} if algo == "sac" else {}
@@ -421,7 +421,7 @@ def test_rl_zoo3_trains_from_the_same_hyperparameter_file(tmp_path):
         "--gym-packages",
         "microg_env",
         "-conf",
-        str(REPO / "training" / "hyperparams" / "ppo.yml"),
+        str(REPO / "microg_env" / "hyperparams" / "ppo.yml"),
         "-n",
         "2048",
         "--eval-freq",
@@ -753,7 +753,7 @@ def test_a_run_killed_in_its_final_evaluation_is_finished_by_a_resume(tmp_path, 
 def test_an_entry_is_checked_on_as_many_environments_as_the_run_steps(tmp_path):
     """n_steps 1 is a rollout of 8 transitions on 8 environments: the check, once built on one
     environment, refused it as SB3 refuses a rollout of one."""
-    entry = yaml.safe_load((REPO / "training" / "hyperparams" / "ppo.yml").read_text())[ENV_ID]
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())[ENV_ID]
     path = tmp_path / "ppo.yml"
     path.write_text(yaml.safe_dump({ENV_ID: entry | {"n_envs": 8, "n_steps": 1, "batch_size": 8}}))
     assert resolve(TrainSettings(hyperparams=str(path))).algo_kwargs["n_steps"] == 1

@@ -53,9 +53,9 @@ def test_mjcf_file_compiles_and_steps_without_warning(path):
     assert np.all(np.isfinite(data.qpos))
 
 
-def test_mjcf_folder_holds_scene_rig_and_readme():
+def test_mjcf_folder_holds_scene_and_rig():
     names = {p.name for p in Path(mjcf_dir()).iterdir()}
-    assert {"scene.xml", "rig.xml", "README.md"} <= names
+    assert {"scene.xml", "rig.xml"} <= names
 
 
 def test_built_rig_steps_without_warning():

@@ -1,4 +1,4 @@
-"""The analysis scripts behind the adaptive baseline's settings, the README's partial oracles and
+"""The analysis scripts behind the adaptive baseline's settings, the partial oracles of docs/controllers.md and
 its returns table run."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Tune the PID baselines by simulation; the result goes into microg_env/config/controllers.toml.
 
-Method (README, "Controllers"):
+Method (docs/controllers.md, "Controllers"):
 
 1. Structure: v = Kp x + Ki integral(x) + D on the grating ruler's x, commanding the drive's speed.
 2. Steady state: in a free fall at constant acceleration the loop holds x at F / (k + M Ki), so the

@@ -6,7 +6,7 @@ The task is the registered ``MicroGravityLanding-Residual-v1``: a policy adds a 
 every reset. Training and the comparison use the package's own recipe and tools (``microg train``
 and ``microg compare`` run the same code). With the default 100 000 steps this takes a few minutes
 on two CPU cores and is far too short to learn anything useful: the point is the workflow and
-an honest yardstick, not a result (the shipped policy trained for 10^6 steps; see the README).
+an honest yardstick, not a result (the shipped policy trained for 10^6 steps; see docs/controllers.md).
 
 Run it as a script (``python docs/tutorials/02_train_residual.py``) or as a notebook (``# %%``
 cells). It needs the train and report extras: ``pip install 'microg-env[train,report]'``.
@@ -24,7 +24,7 @@ parser.add_argument("--duration", type=float, default=10.0, help="cap on each co
 args = parser.parse_args()
 out = Path(args.out)
 
-# %% Train with the packaged recipe (training/hyperparams/ppo.yml): PPO, 8 environments,
+# %% Train with the packaged recipe (microg_env/hyperparams/ppo.yml): PPO, 8 environments,
 # observations and returns normalised; validation on held-out seeds as it goes.
 import torch
 

@@ -21,7 +21,7 @@ args = parser.parse_args()
 out = Path(args.out)
 out.mkdir(parents=True, exist_ok=True)
 
-# %% The campaign file: a base run, a grid to sweep, the seeds (README, "microg campaign").
+# %% The campaign file: a base run, a grid to sweep, the seeds (docs/cli.md, "microg campaign").
 campaign_file = out / "pad-stiffness.yml"
 campaign_file.write_text(
     f"""name: pad-stiffness

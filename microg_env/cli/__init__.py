@@ -14,6 +14,7 @@ import os
 import sys
 from collections.abc import Sequence
 
+from microg_env import __version__
 from microg_env.cli import campaign, learning, rig
 from microg_env.cli.common import Parser, UsageError, one_line
 
@@ -22,6 +23,7 @@ __all__ = ["UsageError", "build_parser", "main"]
 
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="microg", description="MuJoCo model of the QZS microgravity landing rig (Jia et al. 2024).")
+    parser.add_argument("--version", action="version", version=f"microg {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     rig.add_commands(commands)
     learning.add_commands(commands)
@@ -31,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _check_top_level(argv: list[str]) -> None:
     """An option before the command: name it (argparse would only say the command is missing)."""
-    if argv and argv[0].startswith("-") and argv[0] not in ("-h", "--help"):
+    if argv and argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version"):
         raise UsageError(f"microg: error: unrecognized option {argv[0]!r}; give a command first (microg --help)")
 
 

@@ -27,7 +27,7 @@ from typing import Any
 from microg_env.experiments.campaign import Campaign, Run
 from microg_env.experiments.runner import RunResult, run_many
 from microg_env.experiments.spec import RunSpec
-from microg_env.experiments.store import FAILED, OK, ResultStore, result_row
+from microg_env.experiments.store import FAILED, OK, RESULTS_FILE, ResultStore, result_row
 from microg_env.files import LOCK_FILE, folder_lock, write_text
 
 #: Seconds to wait for a cluster's head to answer.
@@ -40,7 +40,6 @@ HTTP2_SETTINGS = 4
 #: Seconds between the driver's looks at a Ctrl-C while it waits for tasks.
 WAIT_S = 0.2
 #: The campaign's table, in its folder.
-RESULTS_FILE = "results.parquet"
 #: The campaign file as it was run, in its folder.
 CAMPAIGN_COPY = "campaign.json"
 

@@ -3,7 +3,8 @@
 ``DIR/runs/part-*.parquet`` holds the rows, one file per finished batch, each written to a
 temporary name and renamed, so an interrupted campaign leaves whole files only. A run is stored
 once it has a row; a later row of the same spec hash (a failed run retried) supersedes an earlier
-one. ``DIR/results.parquet`` is the campaign's table: its own runs, one row each.
+one. ``DIR/results.parquet`` is the campaign's table: its own runs, one row each. The table counts
+as the oldest part, so a folder kept with its table alone (a committed study) resumes from it.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from microg_env.validate import fault
 
 #: Prefix of the comparison's summary quantities (``microg compare``'s, one value per run).
 SUMMARY_PREFIX = "summary_"
+#: The campaign's table in its folder.
+RESULTS_FILE = "results.parquet"
 #: Status of a run that completed (its metrics are set) and of one that raised.
 OK, FAILED = "ok", "failed"
 
@@ -93,6 +96,7 @@ class ResultStore:
     def __init__(self, folder: str | os.PathLike) -> None:
         self.folder = Path(folder)
         self.parts = self.folder / "runs"
+        self.results = self.folder / RESULTS_FILE
 
     def write(self, rows: Sequence[Mapping[str, Any]]) -> Path:
         """Store ``rows`` as one new part file (written whole, then renamed into place)."""
@@ -106,6 +110,8 @@ class ResultStore:
         """Every stored row, the latest per spec hash (an ok row over a failed one), in the order of
         ``hashes`` (only those) if given."""
         files = sorted(self.parts.glob("part-*.parquet"), key=lambda p: p.stat().st_mtime_ns)
+        if self.results.is_file():
+            files.insert(0, self.results)
         if not files:
             return pa.table({})
         parts = []

@@ -1,4 +1,4 @@
-"""PID tuning by simulation (README, "Controllers"; ``training/tune_pid.py`` runs the full tuner).
+"""PID tuning by simulation (docs/controllers.md; ``training/tune_pid.py`` runs the full tuner).
 
 Candidates come from the x loop's closed form: with an ideal drive the loop of x is
 (1 + Kd) s^2 + Kp s + (Ki + w0^2), w0^2 = k / M (Eq. 17's residual stiffness over the lander's

@@ -6,8 +6,8 @@ mapping or its string), ``env_kwargs``, schedules written ``lin_<initial value>`
 ``policy_kwargs`` as a mapping or the zoo's ``"dict(...)"`` string. A run's ``env_kwargs`` are the
 registered id's defaults updated by the entry's, so a run folder says the whole task. Strings are parsed, never
 evaluated: ``dict(...)`` with literal values and ``nn.<Activation>`` are all they may hold. The
-packaged files are ``training/hyperparams/`` of the source tree, the same files
-``python -m rl_zoo3.train -conf`` reads.
+packaged files are ``microg_env/hyperparams/``, the same files ``python -m rl_zoo3.train -conf``
+reads.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import Any
 from gymnasium.envs.registration import registry
 
 from microg_env import validate
-from microg_env.files import data_folder, read_yaml
+from microg_env.files import read_yaml
 from microg_env.validate import shown
 
 #: Algorithms ``microg train`` runs (stable-baselines3's).
@@ -84,7 +84,7 @@ def packaged_file(algo: str) -> Path:
     """The hyperparameter file shipped for ``algo``."""
     if algo not in ALGORITHMS:
         raise ValueError(f"--algo must be one of {', '.join(ALGORITHMS)}, got {shown(algo)}")
-    return data_folder("hyperparams", "training/hyperparams", "ppo.yml") / f"{algo}.yml"
+    return Path(__file__).resolve().parents[1] / "hyperparams" / f"{algo}.yml"
 
 
 def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:

@@ -86,7 +86,7 @@ class TrainSettings:
     seed: int = 0
     timesteps: int | None = None  # None: the hyperparameter file's n_timesteps
     n_envs: int | None = None  # None: the hyperparameter file's n_envs
-    hyperparams: str | None = None  # None: the packaged training/hyperparams/<algo>.yml
+    hyperparams: str | None = None  # None: the packaged microg_env/hyperparams/<algo>.yml
     log_folder: str = "logs"
     eval_freq: int = 100_000  # environment steps (all environments together) between evaluations
     eval_episodes: int = 5
@@ -318,7 +318,7 @@ def _check_checkpoint(where: str, model: Path, normalization: Path | None) -> No
         return
     try:
         with open(normalization, "rb") as stream:
-            statistics = pickle.load(stream)  # a trusted run folder, as the README says
+            statistics = pickle.load(stream)  # a trusted run folder, as docs/cli.md says
     except Exception as error:  # a damaged pickle raises any of a dozen kinds
         kind = type(error).__name__
         raise ValueError(f"{where}: its vecnormalize {str(normalization)!r} cannot be read ({kind})") from None

@@ -5,7 +5,7 @@ conditions 1-3) are fitted by least squares on this model: each residual is the 
 minus the experiment's, in % of the experiment. The model's value is the first contact of the
 ideal-microgravity landing (:mod:`microg_env.sim.reference`), simulated in MuJoCo from the touchdown at
 the speed of the ideal free fall; the rig under the PID lands like it to 0.03 % in deformation and
-0.3 % in acceleration (README), and ``microg reproduce`` checks the fit on the full rig.
+0.3 % in acceleration (docs/paper.md), and ``microg reproduce`` checks the fit on the full rig.
 
 The pad stays the linear spring-damper of Section 2; a Hunt-Crossley exponent is not fitted: the
 experiments' own ratios contradict any single power law (see the reproduction report), and

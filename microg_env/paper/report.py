@@ -543,7 +543,7 @@ Why they moved (the fidelity review of 0.1.0):
   shaking x by nanometres and averaging the QZS guide's friction to zero. The drive now ramps
   its reference at the commanded speed through the period, as a real drive interpolates it.
 - **The physics step is its own parameter**, {PHYSICS_STEP_US:g} µs for every control period, chosen by a
-  convergence study (`benchmarks/convergence.py`, README "Physics step"); 0.1.0 used 0.5 ms at 1 ms
+  convergence study (`benchmarks/convergence.py`, docs/model.md "Physics step"); 0.1.0 used 0.5 ms at 1 ms
   and 500 µs, which moved sub-micrometre excursions by up to 16 %.
 - **Eq. (17) is read literally**: a negative residual stiffness, so the PID's integral lag makes the
   lander fall slightly *fast*, the sign of the paper's simulation (section above); 0.1.0's restoring

@@ -1,4 +1,4 @@
-"""Parameters -> MuJoCo model: the rig of ``mjcf/scene.xml`` with every force law from params.
+"""Parameters -> MuJoCo model: the rig of ``assets/scene.xml`` with every force law from params.
 
 :func:`build_rig` loads the MJCF template with :class:`mujoco.MjSpec`, writes every physical value
 of :class:`~microg_env.params.RigParams` into it (masses, geometry, springs, friction, servo drive,
@@ -21,7 +21,6 @@ import numpy as np
 
 from microg_env import validate
 from microg_env.compiled import ufunc
-from microg_env.files import data_folder
 from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RigParams, parameter_paths
 from microg_env.sim.limits import check_integrable
 from microg_env.sim.physics import FieldWrite
@@ -89,8 +88,8 @@ EPISODE_PARAMETERS = frozenset(
 
 
 def mjcf_dir() -> Path:
-    """Folder holding scene.xml: inside the installed package, or the repository's ``mjcf/``."""
-    return data_folder("mjcf", "mjcf", "scene.xml")
+    """The package's folder of MJCF files (``microg_env/assets``: scene.xml includes rig.xml)."""
+    return Path(__file__).resolve().parents[1] / "assets"
 
 
 def pad_contact_solref(
