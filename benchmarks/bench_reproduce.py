@@ -16,10 +16,10 @@ from pathlib import Path
 
 from timing import median_seconds
 
-from microg_env.analysis.evaluate import run_episode
 from microg_env.cli import main as microg
 from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.rollout.episode import run_episode
 
 
 def main(argv: list[str] | None = None) -> int:

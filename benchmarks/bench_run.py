@@ -23,9 +23,9 @@ import time
 
 import mujoco
 
-from microg_env.analysis.evaluate import run_episode
 from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.rollout.episode import run_episode
 from microg_env.sim.model import SLEW_PARAMETER
 
 

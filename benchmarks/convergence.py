@@ -15,10 +15,10 @@ import argparse
 import math
 import sys
 
-from microg_env.analysis.evaluate import run_with_metrics
 from microg_env.analysis.metrics import MEASURED_METRICS, RunMetrics
 from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.rollout.episode import run_with_metrics
 
 RELATIVE_TOLERANCE = 0.01
 COMPENSATION_TOLERANCE_PP = 0.02

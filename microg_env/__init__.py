@@ -13,8 +13,8 @@ from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
 from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.drop import drop_test, static_sink
 from microg_env.sim.model import PadTest, Rig, build_pad_test, build_rig
+from microg_env.version import __version__
 
-__version__ = "0.4.0"
 #: MicroGravityLanding-Residual-v1's reward_threshold: the mean return of its zero residual (the
 #: adaptive feed-forward alone) over 100 of its own draws, seeds 1000-1099 (678.2 ± 11.5 standard
 #: error; ``python training/returns_table.py --seeds 100 --scenarios training``).

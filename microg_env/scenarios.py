@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 
 from microg_env import validate
 from microg_env.params import RigParams, parameter_paths, with_overrides
+from microg_env.validate import FieldError
 
 #: Shortest and longest test a scenario may schedule, s.
 MIN_DURATION_S, MAX_DURATION_S = 0.01, 600.0
@@ -55,28 +56,38 @@ class Scenario:
 
     def __post_init__(self) -> None:
         if not isinstance(self.loads, tuple) or not self.loads:
-            raise ValueError(f"Scenario.loads must be a non-empty tuple of LoadStep, got {self.loads!r}")
+            raise FieldError(
+                f"Scenario.loads must be a non-empty tuple of LoadStep, got {self.loads!r}", "Scenario.loads"
+            )
         for load in self.loads:
             validate.instance("Scenario.loads item", load, LoadStep)
         validate.at_least("Scenario.descent_height_m", self.descent_height_m, MIN_HEIGHT_M, "m", "0.1 mm above the pad")
         validate.between("Scenario.duration_s", self.duration_s, MIN_DURATION_S, MAX_DURATION_S, "s")
         heights = [math.inf if load.height_m is None else load.height_m for load in self.loads]
         if heights != sorted(heights, reverse=True):
-            raise ValueError("Scenario.loads must be in the order they are placed: t = 0 first, then by falling height")
+            raise FieldError(
+                "Scenario.loads must be in the order they are placed: t = 0 first, then by falling height",
+                "Scenario.loads",
+            )
         for load in self.loads:
             if load.height_m is not None and load.height_m >= self.descent_height_m:
-                raise ValueError(
+                raise FieldError(
                     f"Scenario.loads height {load.height_m!r} m must be below the descent height "
-                    f"{self.descent_height_m!r} m (use None to place a weight at t = 0)"
+                    f"{self.descent_height_m!r} m (use None to place a weight at t = 0)",
+                    "Scenario.loads",
+                    "Scenario.descent_height_m",
                 )
         if self.loads[0].height_m is not None:
-            raise ValueError("Scenario.loads: the first weight must be placed at t = 0 (height None)")
+            raise FieldError("Scenario.loads: the first weight must be placed at t = 0 (height None)", "Scenario.loads")
         if not isinstance(self.overrides, Mapping):
-            raise ValueError(f"Scenario.overrides must be a mapping of dotted parameter paths, got {self.overrides!r}")
+            raise FieldError(
+                f"Scenario.overrides must be a mapping of dotted parameter paths, got {self.overrides!r}",
+                "Scenario.overrides",
+            )
         known = parameter_paths()
         for path in self.overrides:
             if path not in known:
-                raise ValueError(f"Scenario.overrides: unknown parameter {path!r}")
+                raise FieldError(f"Scenario.overrides: unknown parameter {path!r}", "Scenario.overrides")
         object.__setattr__(self, "overrides", dict(sorted(self.overrides.items())))
 
     def __hash__(self) -> int:
@@ -216,9 +227,10 @@ class ScenarioSampler:
         light = self._schedule(self.first_load_kg[0], self.second_load_kg[0], self.descent_height_m[0], 0.01)
         longest = light.ideal_touchdown_s(lander_mass_kg, gravity_m_s2)
         if longest > self.max_touchdown_s:
-            raise ValueError(
+            raise FieldError(
                 f"ScenarioSampler.descent_height_m {self.descent_height_m!r}: its lightest draw from its lowest start "
-                f"touches down after {longest:.2f} s, beyond max_touchdown_s {self.max_touchdown_s:g} s"
+                f"touches down after {longest:.2f} s, beyond max_touchdown_s {self.max_touchdown_s:g} s",
+                "ScenarioSampler.descent_height_m",
             )
         return heavy, replace(light, duration_s=longest + self.after_touchdown_s)
 
@@ -247,10 +259,10 @@ class ScenarioSampler:
 
 def _range(name: str, pair: object) -> tuple[float, float]:
     if not (isinstance(pair, tuple) and len(pair) == 2):
-        raise ValueError(f"{name} must be a (low, high) pair, got {pair!r}")
+        raise FieldError(f"{name} must be a (low, high) pair, got {pair!r}", name)
     low, high = (validate.positive(name, value) for value in pair)
     if low > high:
-        raise ValueError(f"{name} must be a (low, high) pair with low <= high, got {pair!r}")
+        raise FieldError(f"{name} must be a (low, high) pair with low <= high, got {pair!r}", name)
     return low, high
 
 

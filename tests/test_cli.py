@@ -4,6 +4,7 @@ import io
 import json
 import math
 import os
+import pickle
 import shutil
 import subprocess
 import sys
@@ -19,6 +20,8 @@ import yaml
 import microg_env
 from microg_env import cli
 from microg_env.cli import main
+from microg_env.cli.common import DROP_OPTIONS, RUN_OPTIONS, naming
+from microg_env.validate import FieldError
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -526,6 +529,21 @@ def test_a_yaml_alias_bomb_gives_a_short_error(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--hyperparams" in err
     assert len(err) < 5000  # a few kB, not 226 MB
+
+
+def test_errors_name_the_option_by_the_field_they_carry_not_by_words_in_the_message():
+    """The CLI maps FieldError.fields to its options; a message that only mentions a word (here
+    "stiffness") names no option, and a field error survives a process pool's pickling."""
+    error = FieldError("K is too large", "PadParams.stiffness_n_per_m", "physics_step_s")
+    assert str(naming(error, RUN_OPTIONS)) == "--stiffness: K is too large"
+    assert str(naming(error, RUN_OPTIONS, every=True)) == "--stiffness, --physics-step: K is too large"
+    plain = ValueError("the stiffness and the damping are wrong")
+    assert naming(plain, RUN_OPTIONS) is plain
+    assert str(naming(FieldError("too heavy", "mass", "velocity"), DROP_OPTIONS, every=True)) == (
+        "--mass, --velocity: too heavy"
+    )
+    copied = pickle.loads(pickle.dumps(error))
+    assert (type(copied), str(copied), copied.fields) == (FieldError, str(error), error.fields)
 
 
 def test_a_bare_microg_prints_its_help(capsys):

@@ -7,11 +7,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from microg_env.analysis.comparison import QUANTITIES, TEST_SEED, compare
-from microg_env.analysis.comparison_report import COMPARISON_FILES, render_markdown, write
-from microg_env.analysis.evaluate import summarise
+from microg_env.analysis.summary import summarise
 from microg_env.cli import main
-from microg_env.controllers.policy import policy_card, shipped_policy_folder
+from microg_env.controllers.registry import policy_card, shipped_policy_folder
+from microg_env.experiments.comparison import QUANTITIES, TEST_SEED, compare
+from microg_env.experiments.comparison_report import COMPARISON_FILES, render_markdown, write
 from microg_env.learning.hyperparams import load as load_hyperparams
 
 
@@ -214,7 +214,7 @@ def test_cli_compare_runs_held_out_schedules_on_wider_plants(capsys):
 def test_the_figures_label_micrometres_and_say_which_plants(randomized):
     """x_landing.png: µm on a scale that is linear near 0 and in decades beyond (the PID's 10 µm and
     the sub-µm controllers in one panel), titled by what was drawn; metrics.png: µm in its titles."""
-    from microg_env.analysis.comparison_report import PLANT_TITLES, render_figures
+    from microg_env.experiments.comparison_report import PLANT_TITLES, render_figures
 
     figures = render_figures(randomized)
     axes = figures["x_landing.png"].axes
@@ -240,7 +240,7 @@ def test_the_comparison_carries_the_papers_instant_of_collision_change(randomize
 def test_metrics_png_pairs_each_controller_with_its_interval_on_linear_axes(randomized):
     """metrics.png: per metric, each controller's ratio of means to the reference's with its 95 %
     interval, linear axes, the reference's 1 marked; a ratio past OFF_SCALE drawn as its value."""
-    from microg_env.analysis.comparison_report import OFF_SCALE, paired_figure
+    from microg_env.experiments.comparison_report import OFF_SCALE, paired_figure
 
     figure = paired_figure(randomized, size=(6, 3))
     panels = figure.axes
@@ -266,7 +266,7 @@ def test_metrics_png_pairs_each_controller_with_its_interval_on_linear_axes(rand
 
 def test_labels_name_a_policy_folder_in_tables_figures_and_json(randomized):
     """--label NAME=CONTROLLER: a policy's path is shown as NAME; the JSON keeps what was run."""
-    from microg_env.analysis.comparison_report import render_figures
+    from microg_env.experiments.comparison_report import render_figures
 
     shown = replace(randomized, reference="pid").relabelled({"ff": "feedforward"})
     assert shown.controllers == ("pid", "ff")

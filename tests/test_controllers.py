@@ -5,12 +5,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from microg_env.analysis.evaluate import run_episode, run_with_metrics
 from microg_env.controllers import PID, PIDGains, PolicyController, load_gains, make_controller
 from microg_env.controllers.base import tell_plants
-from microg_env.envs.landing import OBSERVATION_INDEX, OBSERVATION_SCALES, MicroGravityLandingEnv
+from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
+from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES
 from microg_env.params import RigParams
+from microg_env.rollout.episode import run_episode, run_with_metrics
 
 GAINS = PIDGains(kp_per_s=100.0, ki_per_s2=5000.0, kd=2.0, derivative_filter_s=0.0, integral_limit_m_s=0.5)
 PERIOD = 1e-3

@@ -16,9 +16,9 @@ from gymnasium.utils.env_checker import check_env
 
 from microg_env import Imperfections, LoadStep, Scenario
 from microg_env.controllers.registry import make_controller
-from microg_env.envs.landing import OBSERVATION_SCALES, MicroGravityLandingEnv
-from microg_env.envs.observation import OBSERVATION_INDEX
+from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
+from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES, Readings
 from microg_env.params import RigParams
 from microg_env.sim.model import drive_inertia_kg_m2
 
@@ -132,8 +132,8 @@ def test_episode_is_truncated_at_the_scenario_duration_at_any_period():
 
 def test_starts_balanced_and_places_loads_on_schedule():
     env = MicroGravityLandingEnv(condition=3, imperfections=Imperfections.none())
-    from microg_env.analysis.evaluate import run_episode
     from microg_env.controllers import make_controller
+    from microg_env.rollout.episode import run_episode
 
     trajectory = run_episode(env, make_controller("pid", env.control_period_s), seed=0, duration_s=11.0)
     assert trajectory.foot_height_m[0] == pytest.approx(0.055, abs=1e-12)
@@ -156,6 +156,23 @@ def test_observation_is_the_sensors_scaled():
     obs, _, _, _, info = env.step(np.array([0.2], dtype=np.float32))
     assert obs[8] == pytest.approx(0.2)
     assert obs[9] == 0.0  # no base controller in speed mode
+
+
+def test_readings_decode_observations_into_the_infos_si_values():
+    """The contract's Readings, for n rigs at once, against what the step reports in SI units."""
+    env = MicroGravityLandingEnv(condition=1, imperfections=Imperfections.none())
+    env.reset(seed=0)
+    rows = [env.step(np.array([0.01], dtype=np.float32)) for _ in range(3)]
+    readings = Readings.of(np.array([obs for obs, *_ in rows]))
+    infos = [info for *_, info in rows]
+    for field, key in [
+        ("support_position_m", "support_position_m"),
+        ("foot_height_m", "foot_height_m"),
+        ("placed_load_kg", "placed_load_kg"),
+    ]:
+        np.testing.assert_allclose(getattr(readings, field), [i[key] for i in infos], rtol=1e-6)
+    np.testing.assert_allclose(readings.x_m, [i["x_m"] for i in infos], atol=1e-8)  # the ruler: 5 nm steps
+    assert readings.pad_force_n.shape == (3,)
 
 
 def test_sensor_noise_and_quantisation():
@@ -191,8 +208,8 @@ def test_reward_keeps_a_gradient_from_millimetres_to_nanometres_and_never_pays_f
 def test_a_zero_residual_is_its_base_controller_exactly(name):
     """action_mode="residual": an action of 0 leaves the base controller alone (the oracle base is
     told each drawn plant by the environment, as the harness tells the oracle)."""
-    from microg_env.analysis.evaluate import run_episode
     from microg_env.controllers import PolicyController, make_controller
+    from microg_env.rollout.episode import run_episode
 
     class Zero:
         def predict(self, observation, deterministic=True):
@@ -511,9 +528,9 @@ def test_a_failed_reset_leaves_the_environment_exactly_as_it_was(monkeypatch):
 def test_every_parameter_passed_in_reaches_the_episode_the_model_and_the_reference():
     from dataclasses import replace
 
-    from microg_env.analysis.evaluate import reference_for, run_episode
     from microg_env.controllers import make_controller
     from microg_env.params import LanderParams, PadParams, RigParams
+    from microg_env.rollout.episode import reference_for, run_episode
 
     params = replace(RigParams(), pad=PadParams(stiffness_n_per_m=8000.0), lander=LanderParams(mass_kg=500.0))
     env = gym.make(ENV_ID, params=params)
@@ -568,8 +585,8 @@ def test_a_long_episode_made_by_id_runs_to_its_scenario_duration():
     """Registered with max_episode_steps=30000, gym.make cut 100 us episodes off at 3 s."""
     scenario = Scenario("long", (LoadStep(0.49),), descent_height_m=0.09, duration_s=3.2)
     env = gym.make(ENV_ID, scenario=scenario, control_period_s=1e-4)
-    from microg_env.analysis.evaluate import run_episode
     from microg_env.controllers import make_controller
+    from microg_env.rollout.episode import run_episode
 
     trajectory = run_episode(env, make_controller("pid", 1e-4), seed=0)
     assert len(trajectory) - 1 == 32_000

@@ -6,9 +6,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from microg_env.analysis.evaluate import evaluate, run_episode, run_with_metrics, summarise
+from microg_env.analysis.summary import summarise
 from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.rollout.episode import evaluate, run_episode, run_with_metrics
 from microg_env.scenarios import CONDITIONS
 
 ENV_ID = "microg_env:MicroGravityLanding-v1"

@@ -20,12 +20,13 @@ import pyarrow.parquet as pq
 import pytest
 
 from microg_env.analysis.metrics import RunMetrics
-from microg_env.controllers.policy import MLPPolicy, shipped_policy_folder
+from microg_env.controllers.policy import MLPPolicy
+from microg_env.controllers.registry import shipped_policy_folder
 from microg_env.experiments.campaign import Campaign
-from microg_env.experiments.runner import run, run_all, run_each
-from microg_env.experiments.spec import RunSpec
 from microg_env.experiments.store import ResultStore, result_row
 from microg_env.params import PHYSICS_STEP_S
+from microg_env.rollout.runner import run, run_all, run_each
+from microg_env.rollout.spec import RunSpec
 
 MICROG = [sys.executable, "-m", "microg_env.cli"]
 SHORT = {"scenario": "condition-2", "duration_s": 0.3}
@@ -60,7 +61,7 @@ def test_spec_hash_is_content_only_and_stable_across_processes():
     ]
     assert len({s.hash for s in changed} | {spec.hash}) == len(changed) + 1
     code = (
-        "from microg_env.experiments.spec import RunSpec;"
+        "from microg_env.rollout.spec import RunSpec;"
         "print(RunSpec(seed=7, overrides={'servo.speed_loop_gain_hz': 150, 'qzs.guide_friction_n': 0.15}).hash)"
     )
     other = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -309,7 +310,7 @@ def test_pid_retuned_picks_the_best_robust_candidate_on_the_specs_own_rig(monkey
         return scorings[-1][2]
 
     monkeypatch.setattr(tuning, "score", recorded)
-    (result,) = run_all([spec])
+    ((_, result),) = next(tuning.run_with_retuning([spec]))
     assert result.ok
     ((candidates, schedules, scored),) = scorings
     schedule = spec.replace(controller="pid")
@@ -326,7 +327,7 @@ def test_pid_retuned_picks_the_best_robust_candidate_on_the_specs_own_rig(monkey
 
 
 def test_a_batch_that_fails_midway_fails_only_its_unfinished_runs(monkeypatch):
-    from microg_env.analysis import batch
+    from microg_env.rollout import batch
 
     monkeypatch.setattr(batch, "MAX_BATCH", 1)  # one rig per batch: three batches
     real, calls = batch._run_chunk, []
@@ -340,7 +341,7 @@ def test_a_batch_that_fails_midway_fails_only_its_unfinished_runs(monkeypatch):
     monkeypatch.setattr(batch, "_run_chunk", second_fails)
     specs = [RunSpec(**SHORT, seed=s) for s in range(3)]
     seen = []
-    from microg_env.experiments.runner import run_many
+    from microg_env.rollout.runner import run_many
 
     for part in run_many(specs):
         seen += [(i, r.ok) for i, r in part]
@@ -793,8 +794,8 @@ def test_a_driver_refused_the_lock_leaves_the_other_drivers_new_folder(tmp_path,
 
 def test_a_stored_row_says_which_randomisation_drew_its_plant():
     """ "wider" and "full" both draw the drive: a column tells them apart (the spec JSON alone did)."""
-    from microg_env.experiments.runner import RunResult
     from microg_env.experiments.store import result_row
+    from microg_env.rollout.runner import RunResult
 
     for randomize, preset in ((False, "none"), (True, "plant"), ("full", "full"), ("wider", "wider")):
         row = result_row(RunResult(RunSpec(randomize=randomize), None, "not run"), {})

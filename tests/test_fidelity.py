@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from microg_env import Imperfections
-from microg_env.analysis.evaluate import run_with_metrics
 from microg_env.analysis.metrics import MEASURED_METRICS, RunMetrics
 from microg_env.controllers import PID, load_gains, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.params import PHYSICS_STEP_S, BalancerParams, QZSParams, RigParams
+from microg_env.rollout.episode import run_with_metrics
 from microg_env.scenarios import CONDITIONS
 from microg_env.sim.model import flexible_unit
 

@@ -8,9 +8,9 @@ import pytest
 
 from microg_env.analysis.metrics import contacts
 from microg_env.analysis.plots import ENVELOPE_BINS, envelope, run_events, run_figure
-from microg_env.analysis.trajectory import CHANNELS
-from microg_env.experiments.runner import run
-from microg_env.experiments.spec import RunSpec
+from microg_env.rollout.runner import run
+from microg_env.rollout.spec import RunSpec
+from microg_env.trajectory import CHANNELS
 
 
 @pytest.fixture(scope="module")

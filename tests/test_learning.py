@@ -15,12 +15,13 @@ import pytest
 import yaml
 
 import microg_env  # registers the environments
-from microg_env.analysis.evaluate import control_cost, run_episode
+from microg_env.analysis.summary import control_cost
 from microg_env.controllers import MLPPolicy, PolicyController, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import export_policy, write_policy_folder
 from microg_env.learning.train import TrainingInterrupted, TrainSettings, resolve, resumed_run, session_seed, train
+from microg_env.rollout.episode import run_episode
 
 pytest.importorskip("stable_baselines3")
 REPO = Path(__file__).resolve().parents[1]
@@ -394,7 +395,7 @@ def test_resume_refuses_what_it_cannot_continue(tmp_path):
 
 
 def test_the_control_cost_is_the_tuners():
-    from microg_env.analysis.evaluate import run_with_metrics
+    from microg_env.rollout.episode import run_with_metrics
 
     env = MicroGravityLandingEnv(condition=2)
     run = run_with_metrics(env, make_controller("pid", 1e-3), seed=0, duration_s=6.0)[2]
@@ -572,8 +573,7 @@ def _fifo(folder):
 def test_a_bad_policy_folder_is_named_before_it_runs(tmp_path, change, message):
     import shutil
 
-    from microg_env.controllers.policy import shipped_policy_folder
-    from microg_env.controllers.registry import check_controller_name
+    from microg_env.controllers.registry import check_controller_name, shipped_policy_folder
 
     folder = tmp_path / "policy"
     shutil.copytree(shipped_policy_folder("residual-ppo"), folder)
@@ -586,8 +586,8 @@ def test_a_bad_policy_folder_is_named_before_it_runs(tmp_path, change, message):
 def test_the_log_states_the_base_controllers_cost_as_the_line_to_beat(ppo_run):
     """A residual run evaluates its base controller alone once (the same validation episodes and
     cost as every evaluation), logs it, and says at the end whether its best beat it."""
-    from microg_env.analysis.evaluate import evaluate
     from microg_env.learning.train import VALIDATION_SEED, _speed_env
+    from microg_env.rollout.episode import evaluate
 
     folder = ppo_run[0]
     entry = yaml.safe_load((folder / "config.yml").read_text())[ENV_ID]

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from microg_env.analysis.metrics import compute_metrics, contacts, descent_acceleration, landing, stage_windows
-from microg_env.analysis.trajectory import CHANNELS, Trajectory
 from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
 from microg_env.sim import reference as reference_module
 from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.model import build_pad_test
 from microg_env.sim.reference import simulate_reference
+from microg_env.trajectory import CHANNELS, Trajectory
 
 DT = 1e-3
 SCENARIO = Scenario("synthetic", (LoadStep(0.49),), descent_height_m=0.09)

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from microg_env.analysis.comparison import Case, CaseResult, Comparison
 from microg_env.analysis.paired import cluster_bootstrap_ratio, paired, sign_test_p
+from microg_env.experiments.comparison import Case, CaseResult, Comparison
 
 
 def test_sign_test_against_the_binomial_by_hand():

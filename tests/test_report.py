@@ -4,7 +4,6 @@ import json
 
 import pytest
 
-from microg_env.analysis.evaluate import run_with_metrics
 from microg_env.cli import main
 from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
@@ -12,6 +11,7 @@ from microg_env.paper import report, reproduction
 from microg_env.paper.calibration import with_pad
 from microg_env.paper.tables import CONDITIONS as PAPER
 from microg_env.params import RigParams
+from microg_env.rollout.episode import run_with_metrics
 from microg_env.scenarios import CONDITIONS
 
 DURATION = 12.0  # long enough for every condition's first contact (and the Eq. 17 free falls)

@@ -9,8 +9,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from microg_env.experiments.campaign import Campaign
-from microg_env.experiments.runner import run
-from microg_env.experiments.spec import RunSpec
+from microg_env.rollout.runner import run
+from microg_env.rollout.spec import RunSpec
 
 REPO = Path(__file__).resolve().parents[1]
 STUDIES = sorted(p.name for p in (REPO / "docs" / "studies").iterdir())

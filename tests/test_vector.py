@@ -13,12 +13,12 @@ from gymnasium.utils.env_checker import data_equivalence
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
 import microg_env  # noqa: F401  (registers the environment)
-from microg_env.analysis.batch import EpisodeSpec, run_batch
-from microg_env.analysis.evaluate import run_episode
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.envs.vector import MicroGravityLandingVectorEnv
 from microg_env.imperfections import DomainRandomization
+from microg_env.rollout.batch import EpisodeSpec, run_batch
+from microg_env.rollout.episode import run_episode
 from microg_env.scenarios import LoadStep, Scenario, condition
 
 ENV_ID = "microg_env:MicroGravityLanding-v1"

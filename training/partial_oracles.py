@@ -17,10 +17,11 @@ import sys
 
 import numpy as np
 
-from microg_env.analysis.evaluate import finite_mean, run_with_metrics
+from microg_env.analysis.summary import finite_mean
 from microg_env.controllers.feedforward import PLANT_FIELDS, Feedforward, plant_model
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
+from microg_env.rollout.episode import run_with_metrics
 
 COGGING = ("cogging", "cogging_phase")
 TOLD = {

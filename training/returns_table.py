@@ -25,9 +25,8 @@ import gymnasium as gym
 import numpy as np
 
 import microg_env  # noqa: F401  (registers the ids)
-from microg_env.analysis.comparison import TEST_SEED
-from microg_env.controllers.policy import check_policy_folder, shipped_policy_folder
-from microg_env.controllers.registry import is_policy_folder
+from microg_env.controllers.registry import check_policy_folder, is_policy_folder, shipped_policy_folder
+from microg_env.experiments.comparison import TEST_SEED
 from microg_env.scenarios import comparison_scenarios
 
 ENV_ID = "MicroGravityLanding-Residual-v1"

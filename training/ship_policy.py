@@ -14,7 +14,8 @@ import shutil
 import sys
 from pathlib import Path
 
-from microg_env.controllers.policy import CARD_FILE, policy_card
+from microg_env.controllers.policy import CARD_FILE
+from microg_env.controllers.registry import policy_card
 from microg_env.files import replace_folder
 
 PACKAGE_POLICIES = Path(__file__).resolve().parents[1] / "microg_env" / "policies"

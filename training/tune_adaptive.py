@@ -12,11 +12,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from microg_env.analysis.evaluate import finite_mean, run_with_metrics
+from microg_env.analysis.summary import finite_mean
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
 from microg_env.learning.train import VALIDATION_SEED
+from microg_env.rollout.episode import run_with_metrics
 
 
 def cost(step: float, seeds: int, duration_s: float | None) -> float:

@@ -29,9 +29,9 @@ from __future__ import annotations
 import itertools
 import sys
 
-from microg_env.experiments.spec import RunSpec
 from microg_env.experiments.tuning import best, candidate_gains, omega0_squared, score
 from microg_env.params import PHYSICS_STEP_S
+from microg_env.rollout.spec import RunSpec
 
 KI_GRID = (10_000.0, 12_500.0, 15_000.0, 17_500.0, 20_000.0)
 ZETA_GRID = (0.5, 0.7, 1.0)

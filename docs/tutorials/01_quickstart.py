@@ -41,7 +41,7 @@ for _ in range(steps):
 print(f"t = {info['time_s']:.2f} s: x = {info['x_m'] * 1e6:+.3f} µm, pad force {info['pad_force_n']:.2f} N")
 
 # %% The same episode recorded, with its ideal-microgravity reference and the paper's metrics.
-from microg_env.analysis.evaluate import run_with_metrics
+from microg_env.rollout.episode import run_with_metrics
 
 trajectory, reference, metrics = run_with_metrics(env, controller, seed=0, duration_s=args.duration)
 print(f"compensation error per stage: {[f'{e:+.3f} %' for e in metrics.compensation_error_pct]}")

@@ -46,8 +46,8 @@ print(f"trained: {run_folder}")
 # %% Compare on scenarios outside every training draw (a 65 mm/s impact, a heavy second weight),
 # plants and drives from ranges 1.5 times wider than training's, the same seeds for every
 # controller, paired against `adaptive` with intervals that resample seeds.
-from microg_env.analysis.comparison import compare
-from microg_env.analysis.comparison_report import render_markdown, write
+from microg_env.experiments.comparison import compare
+from microg_env.experiments.comparison_report import render_markdown, write
 
 comparison = compare(
     [policy, "adaptive", "feedforward"],

@@ -1,4 +1,4 @@
-"""Metrics of a run, computed from its :class:`~microg_env.analysis.trajectory.Trajectory` alone.
+"""Metrics of a run, computed from its :class:`~microg_env.trajectory.Trajectory` alone.
 
 The quantities the paper and the field report (all SI, accelerations up positive):
 
@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from microg_env.analysis.trajectory import Trajectory
+from microg_env.trajectory import Trajectory
 
 #: Time skipped after a weight is placed before the descent is fitted, s: the PID loop settles
 #: in ~0.1 s (closed-loop pair at ~140 rad/s, damping ~0.7).

@@ -14,8 +14,8 @@ from microg_env.analysis.metrics import (
     in_flight_weights,
     placement_time,
 )
-from microg_env.analysis.trajectory import Trajectory
 from microg_env.files import atomic_path
+from microg_env.trajectory import Trajectory
 
 
 def figure_class():

@@ -14,9 +14,9 @@ import os
 import sys
 from collections.abc import Sequence
 
-from microg_env import __version__
 from microg_env.cli import campaign, learning, rig
 from microg_env.cli.common import Parser, UsageError, one_line
+from microg_env.version import __version__
 
 __all__ = ["UsageError", "build_parser", "main"]
 

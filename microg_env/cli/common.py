@@ -8,7 +8,7 @@ import difflib
 import math
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from pathlib import Path
 
@@ -46,33 +46,45 @@ def one_line(message: str) -> str:
     return message.replace("\r", "\\r").replace("\n", "\\n")
 
 
-#: Words in the errors of the model and the environment, and the options of ``microg run`` that
-#: set them: an error is prefixed with the first option whose word it contains.
-RUN_OPTIONS = (
-    ("descent_height_m", "--height"),
-    ("Scenario.loads", "--load"),
-    ("LoadStep", "--load"),
-    ("loads totalling", "--load"),
-    ("duration", "--duration"),
-    ("control_period_s", "--control-period"),
-    ("physics_step_s", "--physics-step"),
-    ("stiffness", "--stiffness"),
-    ("damping", "--damping"),
-)
+#: The options of ``microg run`` (and ``view``, ``export-mjcf``) by the fields their errors name
+#: (:class:`microg_env.validate.FieldError`): a field's whole name, or its last part
+#: (``PadParams.stiffness_n_per_m`` is ``stiffness_n_per_m``).
+RUN_OPTIONS = {
+    "descent_height_m": "--height",
+    "loads": "--load",
+    "loads_kg": "--load",
+    "LoadStep.mass_kg": "--load",
+    "LoadStep.height_m": "--load",
+    "duration_s": "--duration",
+    "control_period_s": "--control-period",
+    "physics_step_s": "--physics-step",
+    "stiffness_n_per_m": "--stiffness",
+    "damping_n_s_per_m": "--damping",
+}
+#: The same for ``microg drop``, whose errors may name several options.
+DROP_OPTIONS = {
+    "mass": "--mass",
+    "mass_kg": "--mass",
+    "stiffness": "--stiffness",
+    "stiffness_n_per_m": "--stiffness",
+    "damping": "--damping",
+    "damping_n_s_per_m": "--damping",
+    "velocity": "--velocity",
+}
 
-#: The same for ``microg drop``: its errors may name several options.
-DROP_OPTIONS = (("mass", "--mass"), ("stiffness", "--stiffness"), ("damping", "--damping"), ("velocity", "--velocity"))
 
-
-def naming(error: ValueError, options: tuple[tuple[str, str], ...], every: bool = False) -> ValueError:
-    """``error`` prefixed with the option(s) whose word it contains."""
+def naming(error: ValueError, options: Mapping[str, str], every: bool = False) -> ValueError:
+    """``error`` prefixed with the option that set its first field that has one (``every``: the
+    options of all its fields); an error naming no field, or already naming its option, as it is."""
     message = str(error)
-    if message.startswith("--"):  # already named
+    if message.startswith("--"):
         return error
-    named = [option for word, option in options if word in message]
+    fields = [name.split(" ")[0] for name in getattr(error, "fields", ())]  # "Scenario.loads item": the loads
+    named = [options.get(name, options.get(name.rpartition(".")[2])) for name in fields]
+    named = list(dict.fromkeys(option for option in named if option))
     if not every:
         named = named[:1]
-    return ValueError(f"{', '.join(dict.fromkeys(named))}: {message}" if named else message)
+    return ValueError(f"{', '.join(named)}: {message}") if named else error
 
 
 def number(low: float, high: float, unit: str, low_open: bool = True) -> Callable[[str], float]:

@@ -9,7 +9,6 @@ import shlex
 import sys
 from pathlib import Path
 
-from microg_env.analysis.comparison import MAX_SEEDS, MAX_WORKERS, TEST_SEED
 from microg_env.cli.common import (
     MAX_SEED,
     add_duration_option,
@@ -20,6 +19,7 @@ from microg_env.cli.common import (
     seed_number,
 )
 from microg_env.controllers.registry import CONTROLLER_NAMES
+from microg_env.experiments.comparison import MAX_SEEDS, MAX_WORKERS, TEST_SEED
 from microg_env.imperfections import PRESETS
 from microg_env.learning.hyperparams import ALGORITHMS, MAX_ENVS
 from microg_env.learning.train import MAX_EVAL_EPISODES, TrainSettings
@@ -94,8 +94,8 @@ def _label(text: str) -> tuple[str, str]:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from microg_env.analysis import comparison, comparison_report
     from microg_env.controllers.registry import check_controller_name
+    from microg_env.experiments import comparison, comparison_report
     from microg_env.scenarios import comparison_scenarios
 
     controllers = args.controllers or list(CONTROLLER_NAMES)

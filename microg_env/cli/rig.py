@@ -109,8 +109,8 @@ def _cmd_export_mjcf(args: argparse.Namespace) -> int:
 
 def _run_spec(args: argparse.Namespace):
     """The run ``microg run``'s options describe."""
-    from microg_env.experiments.spec import RunSpec
     from microg_env.params import RigParams
+    from microg_env.rollout.spec import RunSpec
 
     if args.randomize and args.ideal:
         raise ValueError("--randomize: an --ideal rig has nothing to randomise; give one of them")
@@ -186,8 +186,8 @@ def _print_run(scenario, pad, args: argparse.Namespace, m) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from microg_env.experiments.runner import run
     from microg_env.files import check_output_file
+    from microg_env.rollout.runner import run
 
     plot = None if args.plot is None else check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
     if plot is not None:
@@ -242,7 +242,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _cmd_view(args: argparse.Namespace) -> int:
     from microg_env.analysis.viewer import LiveView, WindowClosed, check_display
-    from microg_env.experiments.runner import run
+    from microg_env.rollout.runner import run
 
     try:
         spec = _run_spec(args)

@@ -1,10 +1,11 @@
 """Controllers behind one interface (:class:`Controller`): the baselines and learned policies."""
 
-from microg_env.controllers.base import Controller, Readings, SetpointController
+from microg_env.controllers.base import Controller, SetpointController
 from microg_env.controllers.feedforward import Feedforward
 from microg_env.controllers.pid import PID, PIDGains, load_gains
-from microg_env.controllers.policy import MLPPolicy, PolicyController, load_policy
-from microg_env.controllers.registry import BASELINES, CONTROLLER_NAMES, make_controller
+from microg_env.controllers.policy import MLPPolicy, PolicyController
+from microg_env.controllers.registry import BASELINES, CONTROLLER_NAMES, load_policy, make_controller
+from microg_env.interface import Readings
 
 __all__ = [
     "BASELINES",

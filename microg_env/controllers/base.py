@@ -6,24 +6,18 @@ shape (10,), it returns one action, shape (1,); given n observations, (n, 10), o
 comparison over many seeds, or a vector environment, never loops over rigs in Python.
 Every controller (the baselines and learned policies) reads only the observation, what the rig's
 sensors give, never the simulator's truth, so that they are compared on equal terms by one harness.
-:class:`Readings` decodes an observation into SI units. A controller that closes its loop on x
-may take a setpoint (:class:`SetpointController`): the residual mode of the environment moves it.
+What an observation holds and what an action means is :mod:`microg_env.interface`'s (its
+:class:`~microg_env.interface.Readings` decodes observations into SI units). A controller that
+closes its loop on x may take a setpoint (:class:`SetpointController`): the residual mode of the environment moves it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from microg_env.envs.observation import OBSERVATION_INDEX
-from microg_env.envs.observation import SCALES as _SCALES
-from microg_env.params import RigParams, ScrewStageParams
-
-#: Drive speed that the action +-1 stands for, m/s: the paper's rig's maximum (Section 4.1), a
-#: fixed unit of the action whatever rig is simulated (a slower drive saturates on its own).
-MAX_SPEED_M_S = ScrewStageParams().max_speed_m_per_s
+from microg_env.params import RigParams
 
 
 class Controller(Protocol):
@@ -105,35 +99,3 @@ class VectorController:
 
 #: Rig numbers 0, 1, ... as an index array (the rigs a call with ``ids=None`` drives).
 _RIGS = np.arange(4096)
-
-
-@dataclass(frozen=True)
-class Readings:
-    """Observations (n, 10) in SI units (OBSERVATION_SCALES), one (n,) array per reading."""
-
-    x_m: np.ndarray  # grating ruler
-    x_rate_m_s: np.ndarray
-    support_position_m: np.ndarray  # servo encoder, above touchdown
-    support_velocity_m_s: np.ndarray
-    lander_accel_m_s2: np.ndarray  # accelerometer, g removed, up positive
-    pad_force_n: np.ndarray
-    foot_height_m: np.ndarray
-    placed_load_kg: np.ndarray
-
-    @classmethod
-    def of(cls, observations: np.ndarray) -> Readings:
-        si = observations * _SCALES  # float64
-
-        def get(name: str) -> np.ndarray:
-            return si[:, OBSERVATION_INDEX[name]]
-
-        return cls(
-            get("x"),
-            get("x_rate"),
-            get("support_position"),
-            get("support_velocity"),
-            get("lander_accel"),
-            get("pad_force"),
-            get("height"),
-            get("placed_load"),
-        )

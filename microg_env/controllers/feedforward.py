@@ -35,9 +35,9 @@ from typing import ClassVar
 import numpy as np
 
 from microg_env.compiled import jit
-from microg_env.controllers.base import MAX_SPEED_M_S, VectorController
+from microg_env.controllers.base import VectorController
 from microg_env.controllers.pid import PID, X_RATE, PIDGains, X, controller_config, load_gains, pid_command
-from microg_env.envs.observation import OBSERVATION_INDEX, SCALES
+from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, SCALES
 from microg_env.params import RigParams
 from microg_env.sim.model import drive_inertia_kg_m2, flexible_unit, speed_loop_gains
 

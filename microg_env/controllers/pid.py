@@ -25,8 +25,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from microg_env.compiled import jit
-from microg_env.controllers.base import MAX_SPEED_M_S, VectorController
-from microg_env.envs.observation import OBSERVATION_INDEX, SCALES
+from microg_env.controllers.base import VectorController
+from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, SCALES
 
 if sys.version_info >= (3, 11):
     import tomllib

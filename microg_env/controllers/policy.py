@@ -11,7 +11,8 @@ controller's last command in entries 8 and 9) and composes the policy with its b
 observation normalisation (``VecNormalize``), so a shipped policy runs without torch; the shipped
 policies live in ``microg_env/policies/<name>/`` with the exported network (``policy.npz``), the
 stable-baselines3 model and normalisation for fine-tuning (``model.zip``, ``vecnormalize.pkl``)
-and the command, seed, budget and results of their training (``policy.json``).
+and the command, seed, budget and results of their training (``policy.json``). Finding a policy
+by name or folder, and checking a folder before it runs, is :mod:`microg_env.controllers.registry`'s.
 """
 
 from __future__ import annotations
@@ -19,20 +20,16 @@ from __future__ import annotations
 import json
 import zipfile
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
+from microg_env import validate
 from microg_env.compiled import jit
-from microg_env.controllers.base import MAX_SPEED_M_S, SetpointController, VectorController, tell_plants
-from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES
-from microg_env.params import CONTROL_PERIOD_S
-
-RESIDUAL_LIMIT_M = 1e-6
-"""The x setpoint a residual action of +-1 stands for, m: a few times the feedforward baseline's
-collision excursion (about 1 um), so the whole action range is useful near touchdown."""
+from microg_env.controllers.base import SetpointController, VectorController, tell_plants
+from microg_env.files import atomic_path
+from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, OBSERVATION_SCALES, RESIDUAL_LIMIT_M
 
 #: Activations of the exported networks (stable-baselines3's defaults: PPO tanh, SAC ReLU).
 ACTIVATIONS = {"tanh": np.tanh, "relu": lambda z: np.maximum(z, 0.0)}
@@ -41,8 +38,6 @@ NETWORK_FILE, CARD_FILE = "policy.npz", "policy.json"
 #: Most bytes an exported network may hold once unpacked (the shipped one: 23 kB); checked from the
 #: archive's headers before anything is read, so a small archive cannot unpack to gigabytes.
 MAX_NETWORK_BYTES = 64 * 2**20
-#: Most bytes a policy card may hold.
-MAX_CARD_BYTES = 2**20
 
 
 @dataclass(frozen=True)
@@ -101,8 +96,6 @@ class MLPPolicy:
         return action.astype(np.float32), None
 
     def save(self, path: str | Path) -> None:
-        from microg_env.files import atomic_path
-
         arrays = {f"weight_{i}": w for i, w in enumerate(self.weights)}
         arrays |= {f"bias_{i}": b for i, b in enumerate(self.biases)}
         arrays |= {"obs_mean": self.obs_mean, "obs_var": self.obs_var}
@@ -160,8 +153,6 @@ class PolicyController(VectorController):
         base: SetpointController | None = None,
         residual_limit_m: float = RESIDUAL_LIMIT_M,
     ) -> None:
-        from microg_env import validate
-
         super().__init__(*(() if base is None else (base,)))
         self.policy = policy
         self.deterministic = deterministic
@@ -205,94 +196,3 @@ def count_periods(ids, periods, decision_period, due):
         periods[i] += 1
         count += due[j]
     return count
-
-
-# -- shipped policies ---------------------------------------------------------------------------
-
-
-def shipped_policies() -> tuple[str, ...]:
-    """Names of the policies shipped in the package (``microg_env/policies/<name>/``)."""
-    root = resources.files("microg_env").joinpath("policies")
-    if not root.is_dir():
-        return ()
-    return tuple(sorted(p.name for p in root.iterdir() if p.is_dir() and p.joinpath(CARD_FILE).is_file()))
-
-
-def policy_card(folder: str | Path) -> dict[str, Any]:
-    """The ``policy.json`` of an exported policy folder: how it acts, how it was trained."""
-    path = Path(folder) / CARD_FILE
-    if not path.exists():
-        raise ValueError(f"policy folder {str(folder)!r} has no {CARD_FILE}")
-    if not path.is_file() or path.stat().st_size > MAX_CARD_BYTES:
-        raise ValueError(f"{str(path)!r} is not a policy card (a regular file of at most {MAX_CARD_BYTES} bytes)")
-    try:
-        card = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"cannot read {str(path)!r}: {error}") from None
-    if not (isinstance(card, dict) and isinstance(card.get("env_kwargs"), dict)):
-        raise ValueError(f"{str(path)!r} is not a policy card (a JSON object with an env_kwargs object)")
-    try:
-        _check_deployment(card["env_kwargs"])
-    except ValueError as error:
-        raise ValueError(f"{str(path)!r}: env_kwargs.{error}") from None
-    return card
-
-
-def _check_deployment(env: dict[str, Any]) -> None:
-    """The env_kwargs a deployed policy reads: of the right kinds and ranges, the base controller a
-    classical one (a policy on a policy, or on itself, is refused)."""
-    from microg_env import validate
-    from microg_env.controllers.registry import BASELINES
-    from microg_env.params import CONTROL_PERIOD_RANGE_S
-
-    validate.choice("action_mode", env.get("action_mode", "speed"), ("speed", "residual"))
-    validate.choice("base_controller", env.get("base_controller", "pid"), BASELINES)
-    if type(env.get("decision_period", 1)) is not int:
-        raise ValueError(f"decision_period must be an integer, got {env['decision_period']!r}")
-    validate.integer("decision_period", env.get("decision_period", 1), 1, 1000)
-    validate.between("control_period_s", env.get("control_period_s", CONTROL_PERIOD_S), *CONTROL_PERIOD_RANGE_S, "s")
-    validate.positive("residual_limit_m", env.get("residual_limit_m", RESIDUAL_LIMIT_M), "m", 1e-3)
-
-
-def shipped_policy_folder(name: str) -> Path:
-    if name not in shipped_policies():
-        raise ValueError(f"no shipped policy {name!r}; shipped: {', '.join(shipped_policies()) or 'none'}")
-    return Path(str(resources.files("microg_env").joinpath("policies", name)))
-
-
-def check_policy_folder(folder: str | Path) -> tuple[dict[str, Any], MLPPolicy]:
-    """The card and network of an exported policy folder, or a ValueError naming what is wrong."""
-    card = policy_card(folder)
-    try:
-        return card, MLPPolicy.load(Path(folder) / NETWORK_FILE)
-    except (OSError, KeyError, ValueError, TypeError, zipfile.BadZipFile) as error:
-        raise ValueError(f"policy folder {str(folder)!r}: cannot read {NETWORK_FILE} ({error})") from None
-
-
-def load_policy(folder: str | Path, control_period_s: float) -> PolicyController:
-    """The exported policy in ``folder`` as a controller; it must run at the control period it
-    was trained at (its decision period and base controller's tuning are tied to it)."""
-    card, policy = check_policy_folder(folder)
-    env = card["env_kwargs"]
-    trained_period = float(env.get("control_period_s", CONTROL_PERIOD_S))
-    if abs(control_period_s - trained_period) > 1e-9:
-        raise ValueError(
-            f"control_period_s {control_period_s!r}: policy {Path(folder).name!r} was trained at "
-            f"{trained_period * 1e6:g} us and runs only at that period"
-        )
-    return deployed_controller(policy, env)
-
-
-def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyController:
-    """``policy``, trained in ``MicroGravityLanding-v1`` with ``env_kwargs``, as the controller it
-    is deployed as: a residual on its base controller, acting every decision period."""
-    from microg_env.controllers.registry import make_controller
-
-    residual = env_kwargs.get("action_mode", "speed") == "residual"
-    period = float(env_kwargs.get("control_period_s", CONTROL_PERIOD_S))
-    return PolicyController(
-        policy,
-        decision_period=int(env_kwargs.get("decision_period", 1)),
-        base=make_controller(env_kwargs.get("base_controller", "pid"), period) if residual else None,
-        residual_limit_m=float(env_kwargs.get("residual_limit_m", RESIDUAL_LIMIT_M)),
-    )

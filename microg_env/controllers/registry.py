@@ -1,27 +1,28 @@
 """Controllers by name: the ones the CLI, the comparison and the evaluation harness select.
 
 A name is a classical baseline, a policy shipped with the package (``microg_env/policies/``), or
-the path of an exported policy folder (a run's ``policy/``, written by ``microg train``).
+the path of an exported policy folder (a run's ``policy/``, written by ``microg train``). A folder
+is checked before it runs (its card's settings, the base controller a classical one, the network's
+sizes) and deployed as it was trained (:func:`deployed_controller`).
 """
 
 from __future__ import annotations
 
+import json
+import zipfile
 from collections.abc import Mapping
 from dataclasses import replace
+from importlib import resources
 from pathlib import Path
+from typing import Any
 
 from microg_env import validate
 from microg_env.controllers.base import Controller
 from microg_env.controllers.feedforward import AdaptiveFeedforward, Feedforward, Oracle
 from microg_env.controllers.pid import PID, load_gains
-from microg_env.controllers.policy import (
-    CARD_FILE,
-    check_policy_folder,
-    load_policy,
-    shipped_policies,
-    shipped_policy_folder,
-)
-from microg_env.params import CONTROL_PERIOD_RANGE_S, RigParams
+from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy, PolicyController
+from microg_env.interface import RESIDUAL_LIMIT_M
+from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, RigParams
 
 #: The classical baselines: the paper's PID, its derivative-on-measurement variant, the PID with
 #: the nominal model's feed-forward, that feed-forward learning the motor's cogging as it runs
@@ -30,8 +31,8 @@ from microg_env.params import CONTROL_PERIOD_RANGE_S, RigParams
 BASELINES = ("pid", "pid-dom", "feedforward", "adaptive", "oracle")
 #: The baselines built on the feed-forward (their feedback loop is ``pid``'s).
 FEEDFORWARDS = {"feedforward": Feedforward, "adaptive": AdaptiveFeedforward, "oracle": Oracle}
-#: Every controller selectable by name: the baselines and the shipped policies.
-CONTROLLER_NAMES = BASELINES + shipped_policies()
+#: Most bytes a policy card may hold.
+MAX_CARD_BYTES = 2**20
 
 
 def is_policy_folder(name: str) -> bool:
@@ -70,3 +71,89 @@ def make_controller(
         return PID(tuned, control_period_s, derivative_on_measurement=name == "pid-dom")
     folder = Path(name) if is_policy_folder(name) else shipped_policy_folder(name)
     return load_policy(folder, control_period_s)
+
+
+def shipped_policies() -> tuple[str, ...]:
+    """Names of the policies shipped in the package (``microg_env/policies/<name>/``)."""
+    root = resources.files("microg_env").joinpath("policies")
+    if not root.is_dir():
+        return ()
+    return tuple(sorted(p.name for p in root.iterdir() if p.is_dir() and p.joinpath(CARD_FILE).is_file()))
+
+
+#: Every controller selectable by name: the baselines and the shipped policies.
+CONTROLLER_NAMES = BASELINES + shipped_policies()
+
+
+def policy_card(folder: str | Path) -> dict[str, Any]:
+    """The ``policy.json`` of an exported policy folder: how it acts, how it was trained."""
+    path = Path(folder) / CARD_FILE
+    if not path.exists():
+        raise ValueError(f"policy folder {str(folder)!r} has no {CARD_FILE}")
+    if not path.is_file() or path.stat().st_size > MAX_CARD_BYTES:
+        raise ValueError(f"{str(path)!r} is not a policy card (a regular file of at most {MAX_CARD_BYTES} bytes)")
+    try:
+        card = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"cannot read {str(path)!r}: {error}") from None
+    if not (isinstance(card, dict) and isinstance(card.get("env_kwargs"), dict)):
+        raise ValueError(f"{str(path)!r} is not a policy card (a JSON object with an env_kwargs object)")
+    try:
+        _check_deployment(card["env_kwargs"])
+    except ValueError as error:
+        raise ValueError(f"{str(path)!r}: env_kwargs.{error}") from None
+    return card
+
+
+def _check_deployment(env: dict[str, Any]) -> None:
+    """The env_kwargs a deployed policy reads: of the right kinds and ranges, the base controller a
+    classical one (a policy on a policy, or on itself, is refused)."""
+    validate.choice("action_mode", env.get("action_mode", "speed"), ("speed", "residual"))
+    validate.choice("base_controller", env.get("base_controller", "pid"), BASELINES)
+    if type(env.get("decision_period", 1)) is not int:
+        raise ValueError(f"decision_period must be an integer, got {env['decision_period']!r}")
+    validate.integer("decision_period", env.get("decision_period", 1), 1, 1000)
+    validate.between("control_period_s", env.get("control_period_s", CONTROL_PERIOD_S), *CONTROL_PERIOD_RANGE_S, "s")
+    validate.positive("residual_limit_m", env.get("residual_limit_m", RESIDUAL_LIMIT_M), "m", 1e-3)
+
+
+def shipped_policy_folder(name: str) -> Path:
+    if name not in shipped_policies():
+        raise ValueError(f"no shipped policy {name!r}; shipped: {', '.join(shipped_policies()) or 'none'}")
+    return Path(str(resources.files("microg_env").joinpath("policies", name)))
+
+
+def check_policy_folder(folder: str | Path) -> tuple[dict[str, Any], MLPPolicy]:
+    """The card and network of an exported policy folder, or a ValueError naming what is wrong."""
+    card = policy_card(folder)
+    try:
+        return card, MLPPolicy.load(Path(folder) / NETWORK_FILE)
+    except (OSError, KeyError, ValueError, TypeError, zipfile.BadZipFile) as error:
+        raise ValueError(f"policy folder {str(folder)!r}: cannot read {NETWORK_FILE} ({error})") from None
+
+
+def load_policy(folder: str | Path, control_period_s: float) -> PolicyController:
+    """The exported policy in ``folder`` as a controller; it must run at the control period it
+    was trained at (its decision period and base controller's tuning are tied to it)."""
+    card, policy = check_policy_folder(folder)
+    env = card["env_kwargs"]
+    trained_period = float(env.get("control_period_s", CONTROL_PERIOD_S))
+    if abs(control_period_s - trained_period) > 1e-9:
+        raise ValueError(
+            f"control_period_s {control_period_s!r}: policy {Path(folder).name!r} was trained at "
+            f"{trained_period * 1e6:g} us and runs only at that period"
+        )
+    return deployed_controller(policy, env)
+
+
+def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyController:
+    """``policy``, trained in ``MicroGravityLanding-v1`` with ``env_kwargs``, as the controller it
+    is deployed as: a residual on its base controller, acting every decision period."""
+    residual = env_kwargs.get("action_mode", "speed") == "residual"
+    period = float(env_kwargs.get("control_period_s", CONTROL_PERIOD_S))
+    return PolicyController(
+        policy,
+        decision_period=int(env_kwargs.get("decision_period", 1)),
+        base=make_controller(env_kwargs.get("base_controller", "pid"), period) if residual else None,
+        residual_limit_m=float(env_kwargs.get("residual_limit_m", RESIDUAL_LIMIT_M)),
+    )

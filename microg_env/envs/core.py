@@ -20,12 +20,11 @@ from typing import Any
 import numpy as np
 
 from microg_env import validate
-from microg_env.controllers.base import MAX_SPEED_M_S, tell_plants
-from microg_env.controllers.policy import RESIDUAL_LIMIT_M
+from microg_env.controllers.base import tell_plants
 from microg_env.controllers.registry import BASELINES, make_controller
 from microg_env.envs import period
-from microg_env.envs.observation import OBSERVATION_INDEX, SCALES, SENSOR_SETS
 from microg_env.imperfections import DomainRandomization, Imperfections, apply_imperfections
+from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, RESIDUAL_LIMIT_M, SCALES, SENSOR_SETS
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, MAX_CONTROL_STEPS, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import LoadStep, Scenario, ScenarioSampler
 from microg_env.scenarios import condition as paper_condition
@@ -40,6 +39,7 @@ from microg_env.sim.model import (
 )
 from microg_env.sim.physics import BatchPhysics, ModelPhysics
 from microg_env.sim.sensors import NoiseDraws, SensorModel
+from microg_env.validate import FieldError
 
 #: Margin before a stroke end (or the pad's full depth) at which the episode terminates, m.
 STOP_MARGIN_M = 1e-4
@@ -227,20 +227,24 @@ class LandingCore:
         top = params.screw.range_m[1] - STOP_MARGIN_M - 0.01
         if scenario.descent_height_m + self.reset_noise_scale > top:
             noise = f" plus reset_noise_scale {self.reset_noise_scale!r} m" if self.reset_noise_scale else ""
-            raise ValueError(
+            raise FieldError(
                 f"Scenario.descent_height_m {scenario.descent_height_m!r} m{noise} is above the screw's reach "
-                f"({top:.3f} m)"
+                f"({top:.3f} m)",
+                "Scenario.descent_height_m",
             )
         steps = round(scenario.duration_s / self.control_period_s)
         if steps < 1:
-            raise ValueError(
+            raise FieldError(
                 f"Scenario.duration_s {scenario.duration_s:g} s is shorter than one control period "
-                f"({self.control_period_s:g} s)"
+                f"({self.control_period_s:g} s)",
+                "Scenario.duration_s",
             )
         if steps > MAX_CONTROL_STEPS:
-            raise ValueError(
+            raise FieldError(
                 f"Scenario.duration_s {scenario.duration_s:g} s at control_period_s {self.control_period_s:g} s "
-                f"is {steps} control steps, more than the {MAX_CONTROL_STEPS} one run may take"
+                f"is {steps} control steps, more than the {MAX_CONTROL_STEPS} one run may take",
+                "Scenario.duration_s",
+                "control_period_s",
             )
         g, mass, load = params.gravity_m_s2, params.lander.mass_kg, sum(scenario.loads_kg)
         validate_loads(scenario.loads_kg, mass)
@@ -510,14 +514,17 @@ def check_control_period(control_period_s: float, physics_step_s: float) -> floa
     low, high = CONTROL_PERIOD_RANGE_S
     period = validate.positive("control_period_s", control_period_s, "s")
     if not low - 1e-12 <= period <= high + 1e-12:
-        raise ValueError(
+        raise FieldError(
             f"control_period_s must be in [{low:g}, {high:g}] s (the RTX timer's 100 us to 10 ms), "
-            f"got {control_period_s!r}"
+            f"got {control_period_s!r}",
+            "control_period_s",
         )
     steps = period / physics_step_s
     if abs(steps - round(steps)) > 1e-6 * steps:
-        raise ValueError(
-            f"control_period_s {control_period_s!r} s must be a whole number of physics steps of {physics_step_s:g} s"
+        raise FieldError(
+            f"control_period_s {control_period_s!r} s must be a whole number of physics steps of {physics_step_s:g} s",
+            "control_period_s",
+            "physics_step_s",
         )
     return period
 

@@ -10,15 +10,19 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
 from microg_env import validate
-from microg_env.controllers.policy import RESIDUAL_LIMIT_M
 from microg_env.envs.core import INFO_KEYS, TERMINATION_REASONS, LandingCore, check_actions
-from microg_env.envs.observation import OBSERVATION_INDEX, OBSERVATION_SCALES, SCALES
 from microg_env.envs.period import x_reward
 from microg_env.imperfections import DomainRandomization, Imperfections
+from microg_env.interface import (
+    OBSERVATION_INDEX,
+    OBSERVATION_SCALES,
+    RESIDUAL_LIMIT_M,
+    action_space,
+    observation_space,
+)
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import Scenario, ScenarioSampler
 
@@ -206,8 +210,8 @@ class MicroGravityLandingEnv(gym.Env):
         self.dt = self.control_period_s * self.decision_period
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dt)}  # frames play in real time
         self._human_every = max(1, round(1.0 / (60.0 * self.dt)))
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(len(SCALES),), dtype=np.float32)
+        self.action_space = action_space()
+        self.observation_space = observation_space()
         model = self.model
         if camera_name not in {model.camera(i).name for i in range(model.ncam)}:
             cameras = ", ".join(model.camera(i).name for i in range(model.ncam))

@@ -15,7 +15,6 @@ from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import numpy as np
-from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -23,7 +22,7 @@ from gymnasium.vector.utils import batch_space
 
 from microg_env import validate
 from microg_env.envs.core import INFO_KEYS, LandingCore, check_actions
-from microg_env.envs.observation import SCALES
+from microg_env.interface import action_space, observation_space
 from microg_env.scenarios import Scenario
 
 #: Most rigs one vector environment steps (a batch's memory grows with it).
@@ -72,8 +71,8 @@ class MicroGravityLandingVectorEnv(VectorEnv):
         self.core = LandingCore(self.num_envs, scenarios=scenarios, batched=True, nthread=nthread, **kwargs)
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         self.render_mode = None
-        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
-        self.single_observation_space = spaces.Box(-np.inf, np.inf, shape=(len(SCALES),), dtype=np.float32)
+        self.single_action_space = action_space()
+        self.single_observation_space = observation_space()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._all = np.arange(self.num_envs)

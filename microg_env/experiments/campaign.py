@@ -1,4 +1,4 @@
-"""A campaign file: a base :class:`~microg_env.experiments.spec.RunSpec`, a full grid (``sweep:``),
+"""A campaign file: a base :class:`~microg_env.rollout.spec.RunSpec`, a full grid (``sweep:``),
 Monte Carlo draws (``samples:``) and seeds, expanded to the campaign's runs.
 
 .. code-block:: yaml
@@ -48,9 +48,9 @@ from typing import Any
 import numpy as np
 
 from microg_env import validate
-from microg_env.experiments.spec import RunSpec
 from microg_env.files import read_yaml
 from microg_env.params import parameter_paths
+from microg_env.rollout.spec import RunSpec
 from microg_env.validate import shown
 
 #: The distributions ``samples:`` draws from, with their arguments.

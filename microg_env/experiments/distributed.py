@@ -2,7 +2,7 @@
 
 The runs not yet stored (:class:`~microg_env.experiments.store.ResultStore`) are cut into tasks of
 specs that share a rig (at most the campaign's ``batch_size``), each a one-CPU Ray task that runs
-its specs as rigs of one batch (:func:`~microg_env.experiments.runner.run_many`). The driver stores
+its specs as rigs of one batch (:func:`~microg_env.experiments.tuning.run_with_retuning`). The driver stores
 each task's rows as the task finishes, so an interrupted campaign keeps every finished task and
 loses none of its rows; re-running it skips the stored runs (a failed run is tried again). A run
 that raises, or a task whose worker dies, is stored with its error.
@@ -25,10 +25,11 @@ from pathlib import Path
 from typing import Any
 
 from microg_env.experiments.campaign import Campaign, Run
-from microg_env.experiments.runner import RunResult, run_many
-from microg_env.experiments.spec import RunSpec
 from microg_env.experiments.store import FAILED, OK, RESULTS_FILE, ResultStore, result_row
+from microg_env.experiments.tuning import run_with_retuning
 from microg_env.files import LOCK_FILE, folder_lock, write_text
+from microg_env.rollout.runner import RunResult
+from microg_env.rollout.spec import RunSpec
 
 #: Seconds to wait for a cluster's head to answer.
 CONNECT_TIMEOUT_S = 5.0
@@ -76,7 +77,7 @@ def _run_task(specs: list[dict], columns: list[dict]) -> list[dict]:
     """A Ray task: these specs as one batch on one core; their rows (a run that raised: its error)."""
     parsed = [RunSpec.from_dict(spec) for spec in specs]
     rows: list[dict | None] = [None] * len(parsed)
-    for batch in run_many(parsed, workers=1):
+    for batch in run_with_retuning(parsed, workers=1):
         for i, result in batch:
             rows[i] = result_row(result, columns[i])
     return rows

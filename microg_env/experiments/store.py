@@ -20,11 +20,11 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from microg_env.analysis.comparison import QUANTITIES
 from microg_env.analysis.metrics import RunMetrics
-from microg_env.experiments.runner import RunResult
-from microg_env.experiments.spec import RANDOMIZE
+from microg_env.experiments.comparison import QUANTITIES
 from microg_env.files import atomic_path
+from microg_env.rollout.runner import RunResult
+from microg_env.rollout.spec import RANDOMIZE
 from microg_env.validate import fault
 
 #: Prefix of the comparison's summary quantities (``microg compare``'s, one value per run).

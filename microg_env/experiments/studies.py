@@ -13,12 +13,12 @@ from typing import Any
 import numpy as np
 
 from microg_env.analysis.plots import figure_class, save_figure
-from microg_env.experiments.runner import run
-from microg_env.experiments.spec import RunSpec
 from microg_env.experiments.tuning import RETUNE_KI
 from microg_env.files import write_text
 from microg_env.paper.tables import CONDITIONS, FIFTY_GRAM_LAG_S
 from microg_env.params import RigParams, parameter_paths
+from microg_env.rollout.runner import run
+from microg_env.rollout.spec import RunSpec
 
 #: The paper's 50 g stage (Table 4): measured -0.38 mm/s^2 against the ideal -0.79 (Table 2).
 PAPER_FIFTY_GRAM_MM_S2, PAPER_STAGE_2_MM_S2 = CONDITIONS[3].measured_descent_accel_mm_s2

@@ -5,24 +5,26 @@ Candidates come from the x loop's closed form: with an ideal drive the loop of x
 mass), so Kp = 2 zeta sqrt((1 + Kd)(Ki + w0^2)); for derivative on the measurement (``pid-dom``)
 Kp and Ki are scaled by 1 + Kd. Each candidate runs on the tuning schedules, every imperfection on,
 seed :data:`TUNING_SEED`, as rigs of one batch, and is scored by
-:func:`~microg_env.analysis.evaluate.control_cost`; the best candidate that stays stable with every
+:func:`~microg_env.analysis.summary.control_cost`; the best candidate that stays stable with every
 gain doubled (gain margin >= 2) wins.
 
 :func:`retune` does this on one spec's own rig and control period (a campaign's ``pid-retuned``),
-with the smaller grid :data:`RETUNE_KI` x :data:`RETUNE_ZETA`.
+with the smaller grid :data:`RETUNE_KI` x :data:`RETUNE_ZETA`; :func:`run_with_retuning` runs specs
+that name ``pid-retuned`` as ``pid`` with the gains it chose, tuned once per rig before they run.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from microg_env.analysis.evaluate import control_cost
+from microg_env.analysis.summary import control_cost
 from microg_env.controllers.pid import PIDGains, load_gains
-from microg_env.experiments.spec import RunSpec
+from microg_env.rollout.runner import RunResult, error_text, run_all, run_many
+from microg_env.rollout.spec import RETUNED_PID, RunSpec
 from microg_env.sim.model import flexible_unit
 
 #: The seed every candidate runs on (test and validation seeds start at 500).
@@ -65,8 +67,6 @@ def omega0_squared(spec: RunSpec) -> float:
 def score(candidates: Sequence[PIDGains], schedules: Sequence[RunSpec], workers: int = 1) -> list[Candidate]:
     """Each candidate's cost over ``schedules`` (their gains and seed replaced) and whether it stays
     stable with every gain doubled: candidates and doubles run together, one batch per schedule."""
-    from microg_env.experiments.runner import run_all
-
     doubled = [replace(g, kp_per_s=2 * g.kp_per_s, ki_per_s2=2 * g.ki_per_s2, kd=2 * g.kd) for g in candidates]
     every = list(candidates) + doubled
     specs = [schedule.replace(seed=TUNING_SEED, gains=asdict(gains)) for gains in every for schedule in schedules]
@@ -102,3 +102,39 @@ def retune(spec: RunSpec, workers: int = 1) -> Candidate:
     w0 = omega0_squared(schedule)
     candidates = [candidate_gains(ki, zeta, 0.0, False, w0) for ki in RETUNE_KI for zeta in RETUNE_ZETA]
     return best(score(candidates, [schedule], workers))
+
+
+def run_with_retuning(
+    specs: Sequence[RunSpec],
+    workers: int = 1,
+    progress: Callable[[float], None] | None = None,
+    keep_trajectories: bool = False,
+) -> Iterator[list[tuple[int, RunResult]]]:
+    """:func:`~microg_env.rollout.runner.run_many` of ``specs`` (same arguments), each ``pid-retuned``
+    spec first re-tuned on its rig and period (:func:`retune`, once per rig) and run as ``pid`` with
+    those gains (its own ``gains`` replacing them field by field). Results carry the spec as given
+    and the gains in ``tuned_gains``; a spec whose tuning fails fails alone."""
+    tuned: dict[str, dict[str, float] | BaseException] = {}
+    runnable, gains, members = [], [], []
+    for i, spec in enumerate(specs):
+        if spec.controller != RETUNED_PID:
+            runnable.append(spec)
+            gains.append({})
+            members.append(i)
+            continue
+        if spec.batch_key not in tuned:
+            try:
+                tuned[spec.batch_key] = retune(spec).gains_dict()
+            except Exception as error:  # its runs fail; the others run on
+                tuned[spec.batch_key] = error
+        chosen = tuned[spec.batch_key]
+        if isinstance(chosen, BaseException):
+            if progress is not None:
+                progress(1)
+            yield [(i, RunResult(spec, None, error_text(chosen)))]
+            continue
+        runnable.append(spec.replace(controller="pid", gains=chosen | dict(spec.gains)))
+        gains.append(chosen | dict(spec.gains))
+        members.append(i)
+    for batch in run_many(runnable, workers, progress, keep_trajectories):
+        yield [(members[k], replace(r, spec=specs[members[k]], tuned_gains=gains[k])) for k, r in batch]

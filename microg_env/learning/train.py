@@ -20,7 +20,7 @@ deterministic policy runs, as a :class:`~microg_env.controllers.policy.PolicyCon
 speed-action environment (exactly as it will be deployed), on ``eval_episodes`` validation
 schedules (:data:`~microg_env.scenarios.VALIDATION_SAMPLER`, longer than the training draws) with
 the training run's imperfections and randomisation, seeds from :data:`VALIDATION_SEED` (never a
-training or test seed); the cost is :func:`~microg_env.analysis.evaluate.control_cost`, the PID
+training or test seed); the cost is :func:`~microg_env.analysis.summary.control_cost`, the PID
 tuner's. Every file is written atomically; ``latest.json`` is written after its checkpoint's files,
 so ``--resume`` always finds a complete one, and continues the step count, the normalisation
 statistics, the replay buffer, the best cost, the evaluation history and the wall-clock total.
@@ -42,8 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from microg_env.controllers.policy import deployed_controller
-from microg_env.controllers.registry import make_controller
+from microg_env.controllers.registry import deployed_controller, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.files import atomic_path, folder_lock, read_settings_text, read_yaml, write_text
 from microg_env.learning import hyperparams as hp
@@ -491,7 +490,8 @@ class _Run:
 
     def validate(self, controller) -> tuple[list, float, float]:
         """The runs, failure rate and cost of ``controller`` on the validation schedules."""
-        from microg_env.analysis.evaluate import control_cost, evaluate
+        from microg_env.analysis.summary import control_cost
+        from microg_env.rollout.episode import evaluate
 
         env_kwargs = self.params.env_kwargs
         seeds = range(VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes)
@@ -511,7 +511,7 @@ class _Run:
 
     def evaluate(self, model) -> None:
         """The deterministic policy on the validation schedules, by the project's metrics."""
-        from microg_env.analysis.evaluate import finite_mean
+        from microg_env.analysis.summary import finite_mean
 
         normalization = model.get_vec_normalize_env()
         policy = _NormalizedPolicy(model, normalization)
@@ -561,7 +561,7 @@ class _Run:
         import stable_baselines3
         import torch
 
-        from microg_env import __version__
+        from microg_env.version import __version__
 
         return {
             "env_id": self.params.env_id,

@@ -15,10 +15,8 @@ from pathlib import Path
 
 import mujoco
 
-from microg_env import __version__
 from microg_env.analysis.metrics import COMPARED_WINDOW, contacts
 from microg_env.analysis.plots import envelope, figure_class, save_figure
-from microg_env.analysis.trajectory import Trajectory
 from microg_env.controllers import load_gains
 from microg_env.files import check_output_folder, replace_folder
 from microg_env.paper.previous import PID_GAINS_0_1, RELEASE_0_1, SCREW_TORQUE_0_1_N_M
@@ -28,7 +26,6 @@ from microg_env.paper.reproduction import (
     PADS,
     PAPER_LIKE_GAINS,
     READINGS,
-    ConditionRun,
     Reproduction,
 )
 from microg_env.paper.tables import CONDITIONS as PAPER
@@ -39,9 +36,12 @@ from microg_env.paper.tables import (
     experiment_relative_error_pct,
 )
 from microg_env.params import PHYSICS_STEP_S, RigParams
+from microg_env.rollout.runner import RunResult
 from microg_env.scenarios import CONDITIONS
 from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.model import flexible_unit
+from microg_env.trajectory import Trajectory
+from microg_env.version import __version__
 
 #: The physics step, in the report's unit.
 PHYSICS_STEP_US = PHYSICS_STEP_S * 1e6
@@ -688,7 +688,7 @@ def render_figures(rep: Reproduction) -> dict[str, object]:
     return made
 
 
-def _draw(name: str, ax, run: ConditionRun, style: str, label: str) -> None:
+def _draw(name: str, ax, run: RunResult, style: str, label: str) -> None:
     t = run.trajectory
     contact = _first_contact(t)
     if name == "fig3_flexible_unit.png":  # the cogging ripple as a band, so neither pad hides the other

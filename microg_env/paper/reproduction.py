@@ -14,12 +14,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from microg_env.analysis.metrics import RunMetrics
-from microg_env.analysis.trajectory import Trajectory
-from microg_env.experiments.runner import run_each
-from microg_env.experiments.spec import RunSpec
 from microg_env.paper.calibration import Calibration, stored_calibration, with_pad
 from microg_env.params import RigParams
+from microg_env.rollout.runner import RunResult, run_each
+from microg_env.rollout.spec import RunSpec
 from microg_env.scenarios import CONDITIONS
 
 PADS = ("paper", "calibrated")
@@ -36,19 +34,10 @@ FIFTY_GRAM_STAGE_S = 8.5
 
 
 @dataclass(frozen=True)
-class ConditionRun:
-    """One condition with one pad: the rig's run, its ideal reference and their metrics."""
-
-    trajectory: Trajectory
-    reference: Trajectory
-    metrics: RunMetrics
-
-
-@dataclass(frozen=True)
 class Reproduction:
     """Everything the report shows."""
 
-    runs: dict[tuple[str, int], ConditionRun]
+    runs: dict[tuple[str, int], RunResult]  # one condition with one pad: the run, its reference, its metrics
     calibration: Calibration  # the pad fitted to the paper's experiments
     simulation_fit: Calibration  # the pad with which this model lands as the paper's simulation did
     pads: dict[str, tuple[float, float]]  # K, D of each pad
@@ -110,10 +99,7 @@ def compute(
             )
     specs = [*mains.values(), *eq17_specs.values(), *drift_specs.values()]
     results = run_each(specs, workers, progress)
-    runs = {
-        key: ConditionRun(result.trajectory, result.reference, result.metrics)
-        for key, result in zip(mains, results, strict=False)
-    }
+    runs = dict(zip(mains, results, strict=False))
     metrics = {spec: result.metrics for spec, result in zip(specs, results, strict=True)}
     eq17 = {key: metrics[spec].compensation_error_pct for key, spec in eq17_specs.items()}
     for number in NUMBERS:

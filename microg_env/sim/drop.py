@@ -20,6 +20,7 @@ from microg_env.params import MIN_STEPS_PER_CONTACT, PHYSICS_STEP_RANGE_S, PHYSI
 from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.limits import check_damping
 from microg_env.sim.model import PadTest, build_pad_test
+from microg_env.validate import FieldError
 
 #: Physics steps the drop starts above the pad (reached at constant speed in zero field).
 _APPROACH_STEPS = 5
@@ -105,25 +106,31 @@ def validate_drop(
     validate.positive("velocity", impact_speed, "m/s")
     contact = check_damping(mass_kg, stiffness, damping)
     if contact.contact_time_s > _MAX_SIMULATED_S:
-        raise ValueError(
+        raise FieldError(
             f"stiffness {stiffness!r} N/m with mass {mass_kg!r} kg gives a {contact.contact_time_s:.3g} s contact, "
-            f"longer than the {_MAX_SIMULATED_S:g} s a drop test simulates"
+            f"longer than the {_MAX_SIMULATED_S:g} s a drop test simulates",
+            "stiffness",
+            "mass",
         )
     if contact.contact_time_s / drop_physics_step(contact) < MIN_STEPS_PER_CONTACT:
-        raise ValueError(
+        raise FieldError(
             f"stiffness {stiffness!r} N/m with mass {mass_kg!r} kg gives a {contact.contact_time_s:.3g} s contact, "
-            f"fewer than {MIN_STEPS_PER_CONTACT} of the finest physics step ({PHYSICS_STEP_RANGE_S[0]:g} s)"
+            f"fewer than {MIN_STEPS_PER_CONTACT} of the finest physics step ({PHYSICS_STEP_RANGE_S[0]:g} s)",
+            "stiffness",
+            "mass",
         )
     depth = contact.max_deformation_m(impact_speed)
     if depth >= params.pad.thickness_m:
-        raise ValueError(
+        raise FieldError(
             f"velocity {impact_speed!r} m/s gives a {depth * 1e3:.1f} mm deformation, beyond the pad's "
-            f"{params.pad.thickness_m * 1e3:.0f} mm thickness"
+            f"{params.pad.thickness_m * 1e3:.0f} mm thickness",
+            "velocity",
         )
     if depth < _MIN_DEFORMATION_M:
-        raise ValueError(
+        raise FieldError(
             f"velocity {impact_speed!r} m/s gives a {depth * 1e6:.3g} um deformation, below the "
-            f"{_MIN_DEFORMATION_M * 1e6:g} um the drop test resolves"
+            f"{_MIN_DEFORMATION_M * 1e6:g} um the drop test resolves",
+            "velocity",
         )
     return contact
 

@@ -14,15 +14,19 @@ import math
 
 from microg_env.params import MIN_PAD_DAMPING_RATIO, MIN_STEPS_PER_CONTACT, PadParams, RigParams
 from microg_env.sim.contact import SpringDamperContact
+from microg_env.validate import FieldError
 
 
 def check_damping(mass_kg: float, stiffness_n_per_m: float, damping_n_s_per_m: float) -> SpringDamperContact:
     """The Section 2 contact, if its damping ratio is in [MIN_PAD_DAMPING_RATIO, 1)."""
     contact = SpringDamperContact(mass_kg, stiffness_n_per_m, damping_n_s_per_m)  # raises for xi >= 1
     if contact.xi < MIN_PAD_DAMPING_RATIO:
-        raise ValueError(
+        raise FieldError(
             f"damping {damping_n_s_per_m!r} N s/m gives a damping ratio {contact.xi:.2g} for stiffness "
-            f"{stiffness_n_per_m!r} N/m and mass {mass_kg:g} kg, below {MIN_PAD_DAMPING_RATIO:g}"
+            f"{stiffness_n_per_m!r} N/m and mass {mass_kg:g} kg, below {MIN_PAD_DAMPING_RATIO:g}",
+            "stiffness_n_per_m",  # the pad's K and D set the ratio; the stiffness named first
+            "damping_n_s_per_m",
+            "mass_kg",
         )
     return contact
 
@@ -33,10 +37,12 @@ def check_pad_model(pad: PadParams, mass_kg: float, physics_step_s: float, conte
     contact = check_damping(mass_kg, pad.stiffness_n_per_m, pad.damping_n_s_per_m)
     finest = contact.contact_time_s / MIN_STEPS_PER_CONTACT
     if physics_step_s > finest:
-        raise ValueError(
+        raise FieldError(
             f"pad stiffness {pad.stiffness_n_per_m:g} N/m ({context}) gives a {contact.contact_time_s * 1e3:.3g} ms "
             f"contact, fewer than {MIN_STEPS_PER_CONTACT} physics steps of {physics_step_s:g} s; "
-            f"use physics_step_s <= {finest:.2g} s or a softer pad"
+            f"use physics_step_s <= {finest:.2g} s or a softer pad",
+            "stiffness_n_per_m",
+            "physics_step_s",
         )
     return contact
 
@@ -61,9 +67,11 @@ def check_pad(
     depth = contact.max_deformation_m(impact_speed_m_s) + load_n / pad.stiffness_n_per_m
     limit, what = usable_depth_m(params)
     if depth >= limit:
-        raise ValueError(
+        raise FieldError(
             f"pad stiffness {pad.stiffness_n_per_m:g} N/m and damping {pad.damping_n_s_per_m:g} N s/m ({context}) "
-            f"would deform the pad by {depth * 1e3:.1f} mm, beyond {what}"
+            f"would deform the pad by {depth * 1e3:.1f} mm, beyond {what}",
+            "stiffness_n_per_m",
+            "damping_n_s_per_m",
         )
     return contact
 
@@ -92,8 +100,10 @@ def check_integrable(params: RigParams, physics_step_s: float, ideal_drive: bool
             )
     for name, omega in modes:
         if omega * physics_step_s > MAX_OMEGA_DT:
-            raise ValueError(
+            raise FieldError(
                 f"{name} makes a {omega:.3g} rad/s mode, too fast for physics_step_s {physics_step_s:g} s "
                 f"(omega dt {omega * physics_step_s:.2g} > {MAX_OMEGA_DT:g}); use physics_step_s <= "
-                f"{MAX_OMEGA_DT / omega:.2g} s"
+                f"{MAX_OMEGA_DT / omega:.2g} s",
+                name,
+                "physics_step_s",
             )

@@ -24,6 +24,7 @@ from microg_env.compiled import ufunc
 from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RigParams, parameter_paths
 from microg_env.sim.limits import check_integrable
 from microg_env.sim.physics import FieldWrite
+from microg_env.validate import FieldError
 
 #: Density of the steel test weights (for their size only; their mass is what matters).
 _STEEL_DENSITY_KG_M3 = 7850.0
@@ -391,9 +392,10 @@ def validate_loads(loads_kg: tuple[float, ...], lander_mass_kg: float) -> None:
         validate.positive(f"load {i} mass", mass, "kg")
     limit = lander_mass_kg / 99.0
     if sum(loads_kg) > limit:
-        raise ValueError(
+        raise FieldError(
             f"loads totalling {sum(loads_kg):g} kg on a {lander_mass_kg:g} kg lander exceed {limit:.2f} kg, "
-            f"the most that keeps the simulated field within the rig's 1e-2 g range"
+            f"the most that keeps the simulated field within the rig's 1e-2 g range",
+            "loads_kg",
         )
 
 
@@ -570,7 +572,7 @@ def check_physics_step(physics_step_s: float) -> float:
     low, high = PHYSICS_STEP_RANGE_S
     step = validate.positive("physics_step_s", physics_step_s, "s")
     if not low <= step <= high:
-        raise ValueError(f"physics_step_s must be in [{low:g}, {high:g}] s, got {physics_step_s!r}")
+        raise FieldError(f"physics_step_s must be in [{low:g}, {high:g}] s, got {physics_step_s!r}", "physics_step_s")
     return step
 
 

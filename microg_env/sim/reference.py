@@ -17,10 +17,10 @@ from dataclasses import replace
 import mujoco
 import numpy as np
 
-from microg_env.analysis.trajectory import CHANNELS, Trajectory
 from microg_env.params import RigParams
 from microg_env.scenarios import Scenario
 from microg_env.sim.model import build_pad_test, pad_contact_solref
+from microg_env.trajectory import CHANNELS, Trajectory
 
 #: References kept for reuse (each 30 s one is ~2 MB).
 KEPT = 8

@@ -1,6 +1,6 @@
 """Many episodes at once: every (controller, scenario, seed) a rig of one ``mujoco.batch``.
 
-:func:`run_batch` is the evaluation harness of :mod:`microg_env.analysis.evaluate` for many
+:func:`run_batch` is the evaluation harness of :mod:`microg_env.rollout.episode` for many
 episodes: the rigs are stepped together by :class:`~microg_env.envs.core.LandingCore`, each
 controller drives its rigs in one vectorised call per control period, and each rig records the
 same channels a single-environment episode records. Rig i seeded s runs exactly the episode
@@ -16,11 +16,11 @@ from typing import Any
 import numpy as np
 from gymnasium.utils import seeding
 
-from microg_env.analysis.trajectory import CHANNELS, Trajectory
 from microg_env.controllers.base import tell_plants
 from microg_env.envs.core import TERMINATION_REASONS, LandingCore
 from microg_env.params import RigParams
 from microg_env.scenarios import Scenario
+from microg_env.trajectory import CHANNELS, Trajectory
 
 #: Rigs stepped in one batch at most: the recorded channels take 14 x 8 bytes per rig and control
 #: step (0.9 GB for 256 rigs of 30 s at 1 ms).

@@ -1,12 +1,12 @@
 """Controllers compared on the same physics: every controller on the same scenarios and seeds.
 
-Each case (controller, scenario, seed) is one run (:class:`~microg_env.experiments.spec.RunSpec`)
+Each case (controller, scenario, seed) is one run (:class:`~microg_env.rollout.spec.RunSpec`)
 of ``MicroGravityLanding-v1`` with the speed action, every imperfection on and, with
 ``randomize``, the domain randomisation's plant (and with "full" or "wider" its drive) drawn from the seed,
 so every controller meets the same plant, noise and drift. The scenarios are held out of training
 (:func:`microg_env.scenarios.comparison_scenarios`) and the seeds start at :data:`TEST_SEED`,
 above every training and validation seed. The cases run through
-:func:`microg_env.experiments.runner.run_many`: as rigs of ``mujoco.batch`` batches (``workers``
+:func:`microg_env.rollout.runner.run_many`: as rigs of ``mujoco.batch`` batches (``workers``
 threads), each controller driving its rigs in one vectorised call, the ideal references in
 ``workers`` processes. Each case keeps its metrics and, for the first seed, x around the touchdown.
 """
@@ -21,13 +21,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from microg_env import validate
-from microg_env.analysis.evaluate import Summary, finite_mean, summarise
 from microg_env.analysis.metrics import COMPARED_WINDOW, RunMetrics, contacts
 from microg_env.analysis.paired import Paired, paired
-from microg_env.analysis.trajectory import Trajectory
+from microg_env.analysis.summary import Summary, finite_mean, summarise
 from microg_env.controllers.registry import CONTROLLER_NAMES, check_controller_name
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.scenarios import Scenario, comparison_scenarios
+from microg_env.trajectory import Trajectory
 
 #: First test seed: training seeds its environments from 0 (``n_envs`` of them), validation from 500.
 TEST_SEED = 1000
@@ -115,7 +115,7 @@ class Comparison:
     results: list[CaseResult] = field(default_factory=list)
     #: The controller the others are paired against (:meth:`paired`), or None.
     reference: str | None = None
-    sensor_set: str = "extended"  # the rig's sensors (microg_env.envs.observation.SENSOR_SETS)
+    sensor_set: str = "extended"  # the rig's sensors (microg_env.interface.SENSOR_SETS)
     #: Names shown for controllers (``microg compare --label``): shown name -> the controller run.
     labels: dict[str, str] = field(default_factory=dict)
 
@@ -284,8 +284,8 @@ def compare(
         reference=reference,
         sensor_set=sensor_set,
     )
-    from microg_env.experiments.runner import run_many
-    from microg_env.experiments.spec import RunSpec
+    from microg_env.rollout.runner import run_many
+    from microg_env.rollout.spec import RunSpec
 
     specs = []
     for case in cases:

@@ -7,20 +7,18 @@ rig's settings from ``env.unwrapped``.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
 
 from microg_env import validate
 from microg_env.analysis.metrics import RunMetrics, compute_metrics
-from microg_env.analysis.trajectory import Trajectory, TrajectoryRecorder
 from microg_env.controllers.base import Controller, tell_plants
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.scenarios import MAX_DURATION_S
 from microg_env.sim.reference import simulate_reference
+from microg_env.trajectory import Trajectory, TrajectoryRecorder
 
 
 def _rig_env(env: gym.Env) -> MicroGravityLandingEnv:
@@ -101,47 +99,6 @@ def run_with_metrics(
     trajectory = run_episode(env, controller, seed, duration_s, on_progress=on_progress, on_step=on_step)
     reference = reference_for(env, trajectory)
     return trajectory, reference, compute_metrics(trajectory, reference)
-
-
-@dataclass(frozen=True)
-class Summary:
-    """A metric over several seeds: mean, standard deviation and worst case."""
-
-    mean: float
-    std: float
-    worst: float
-
-
-def summarise(runs: Iterable[RunMetrics], quantity: Callable[[RunMetrics], float], worst: Callable = max) -> Summary:
-    """Summary of ``quantity(run)`` over ``runs``, leaving out runs that never reached it (NaN)."""
-    values = np.array([quantity(run) for run in runs], dtype=float)
-    finite = values[np.isfinite(values)]
-    if finite.size == 0:
-        return Summary(math.nan, math.nan, math.nan)
-    return Summary(float(finite.mean()), float(finite.std()), float(worst(finite)))
-
-
-def finite_mean(values: Iterable[float]) -> float:
-    """The mean of the finite values (a stage or window a run did not reach is NaN); NaN if none."""
-    finite = [v for v in values if math.isfinite(v)]
-    return float(np.mean(finite)) if finite else math.nan
-
-
-def control_cost(runs: Iterable[RunMetrics]) -> float:
-    """The cost controllers are tuned and selected by: J = mean |compensation error| [%] over the
-    load stages of ``runs`` long enough to measure (a second of free fall) + the worst
-    flexible-unit excursion at the collision [um] / 10 (the two headline figures of Section 3.2,
-    weighted so 0.1 % counts as 1 um). Infinite if a run ended at a limit or missed its collision,
-    or no stage could be measured."""
-    errors, excursions = [], []
-    for run in runs:
-        if run.termination_reason is not None:
-            return math.inf
-        errors += [abs(e) for e in run.compensation_error_pct if math.isfinite(e)]
-        excursions.append(run.flexible_unit_excursion_collision_m * 1e6)
-    if not errors or not all(map(math.isfinite, excursions)):
-        return math.inf
-    return float(np.mean(errors) + max(excursions) / 10.0)
 
 
 def evaluate(

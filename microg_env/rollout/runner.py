@@ -1,9 +1,9 @@
-"""The one runner: :func:`run` runs a :class:`~microg_env.experiments.spec.RunSpec`, :func:`run_many`
+"""The one runner: :func:`run` runs a :class:`~microg_env.rollout.spec.RunSpec`, :func:`run_many`
 runs many, as rigs of ``mujoco.batch`` batches where they share a rig (specs that differ only in
 controller, gains or seed), and both return :class:`RunResult`: the metrics and what produced them.
 
 :func:`run` steps the single Gymnasium environment (it can render a video as it goes);
-:func:`run_many` steps the vector core (:func:`microg_env.analysis.batch.run_batches`). A spec gives
+:func:`run_many` steps the vector core (:func:`microg_env.rollout.batch.run_batches`). A spec gives
 the same trajectory either way, bit for bit (tests/test_vector.py, tests/test_experiments.py).
 """
 
@@ -25,11 +25,14 @@ from typing import Any
 import gymnasium as gym
 
 from microg_env import validate
-from microg_env.analysis.batch import EpisodeSpec, run_batches
 from microg_env.analysis.metrics import RunMetrics, compute_metrics
-from microg_env.analysis.trajectory import Trajectory
-from microg_env.experiments.spec import RETUNED_PID, RunSpec
+from microg_env.controllers.registry import make_controller
+from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.rollout.batch import EpisodeSpec, run_batches
+from microg_env.rollout.episode import run_with_metrics
+from microg_env.rollout.spec import RETUNED_PID, RunSpec
 from microg_env.sim.reference import simulate_reference
+from microg_env.trajectory import Trajectory
 
 
 @cache
@@ -47,7 +50,8 @@ def versions() -> dict[str, str]:
 @dataclass(frozen=True)
 class RunResult:
     """A run's metrics (None if it raised, with ``error``), its spec, the PID gains a re-tuned
-    controller used, the wall time and versions; the trajectories only while in memory."""
+    controller used (set by :func:`microg_env.experiments.tuning.run_with_retuning`), the wall time
+    and versions; the trajectories only while in memory."""
 
     spec: RunSpec
     metrics: RunMetrics | None
@@ -72,20 +76,16 @@ def run(
     """Run ``spec`` on the single environment (``render``: its render keyword arguments;
     ``on_step(env, info)`` after the reset and every step; ``on_progress(steps)``). Raises on a bad
     spec; the result keeps both trajectories."""
-    from microg_env.analysis.evaluate import run_with_metrics
-    from microg_env.envs.landing import MicroGravityLandingEnv
-
     start = time.perf_counter()
-    resolved, gains = _resolve_controller(spec, {})
-    env = MicroGravityLandingEnv(**resolved.env_kwargs(), **(render or {}))
+    env = MicroGravityLandingEnv(**spec.env_kwargs(), **(render or {}))
     try:
-        controller = _controller(resolved)
+        controller = _controller(spec)
         trajectory, reference, metrics = run_with_metrics(
-            env, controller, resolved.seed, on_step=on_step, on_progress=on_progress
+            env, controller, spec.seed, on_step=on_step, on_progress=on_progress
         )
     finally:
         env.close()
-    return RunResult(spec, metrics, None, gains, time.perf_counter() - start, versions(), trajectory, reference)
+    return RunResult(spec, metrics, None, {}, time.perf_counter() - start, versions(), trajectory, reference)
 
 
 def run_each(
@@ -134,25 +134,23 @@ def run_many(
     def failed(i: int, error: BaseException) -> list[tuple[int, RunResult]]:
         if progress is not None:
             progress(1)
-        return [(i, RunResult(specs[i], None, _error_text(error)))]
+        return [(i, RunResult(specs[i], None, error_text(error)))]
 
     with contextlib.ExitStack() as stack:
         pool = stack.enter_context(ProcessPoolExecutor(max_workers=workers)) if workers > 1 else None
         for every in groups.values():
-            members, resolved, tuned = [], [], {}
-            for i in every:  # a spec whose controller cannot be made or tuned fails alone, before any stepping
+            members = []
+            for i in every:  # a spec whose controller cannot be made fails alone, before any stepping
                 try:
-                    runnable, gains = _resolve_controller(specs[i], tuned)
-                    _controller(runnable)
+                    _controller(specs[i])
                 except Exception as error:
                     yield failed(i, error)
                     continue
                 members.append(i)
-                resolved.append((runnable, gains))
             done: set[int] = set()
             start = time.perf_counter()
             try:
-                for batch in _run_group([specs[i] for i in members], resolved, workers, progress, pool):
+                for batch in _run_group([specs[i] for i in members], workers, progress, pool):
                     elapsed = (time.perf_counter() - start) / max(len(batch), 1)
                     start = time.perf_counter()
                     done.update(members[i] for i, _ in batch)
@@ -161,7 +159,7 @@ def run_many(
                 rest = [i for i in members if i not in done]
                 if progress is not None:
                     progress(len(rest))
-                yield [(i, RunResult(specs[i], None, _error_text(error))) for i in rest]
+                yield [(i, RunResult(specs[i], None, error_text(error))) for i in rest]
 
 
 def run_all(specs: Sequence[RunSpec], workers: int = 1, **kwargs) -> list[RunResult]:
@@ -180,29 +178,19 @@ def _finished(result: RunResult, wall_s: float, keep: bool) -> RunResult:
     return replace(result, wall_s=wall_s, trajectory=None, reference=None)
 
 
-def _error_text(error: BaseException) -> str:
+def error_text(error: BaseException) -> str:
     """The error's one-line message and where it was raised."""
     frame = traceback.extract_tb(error.__traceback__)[-1] if error.__traceback__ else None
     where = f" ({frame.filename.rsplit('/', 1)[-1]}:{frame.lineno})" if frame else ""
     return f"{type(error).__name__}: {error}{where}"
 
 
-def _resolve_controller(spec: RunSpec, tuned: dict[str, dict[str, float]]) -> tuple[RunSpec, dict[str, float]]:
-    """``spec`` as it runs: ``pid-retuned`` becomes ``pid`` with the gains the tuner chose on the
-    spec's rig and period (kept in ``tuned`` by rig, so once per rig), and those gains."""
-    if spec.controller != RETUNED_PID:
-        return spec, {}
-    if spec.batch_key not in tuned:
-        from microg_env.experiments.tuning import retune
-
-        tuned[spec.batch_key] = retune(spec).gains_dict()
-    gains = tuned[spec.batch_key] | dict(spec.gains)
-    return spec.replace(controller="pid", gains=gains), gains
-
-
 def _controller(spec: RunSpec):
-    from microg_env.controllers.registry import make_controller
-
+    if spec.controller == RETUNED_PID:
+        raise ValueError(
+            f"controller {RETUNED_PID!r} is tuned before it runs: "
+            "run it with microg_env.experiments.tuning.run_with_retuning"
+        )
     return make_controller(spec.controller, spec.control_period_s, spec.rig_params(), spec.gains)
 
 
@@ -212,15 +200,11 @@ def _reference(job: tuple) -> Trajectory:
     return simulate_reference(scenario, params, control_period_s, physics_step_s, duration_s)
 
 
-def _run_group(
-    group: Sequence[RunSpec], resolved: Sequence[tuple[RunSpec, dict[str, float]]], workers: int, progress, pool
-) -> Iterator[list[tuple[int, RunResult]]]:
-    """One rig's specs (``resolved``: as they run) in batches, with one ideal reference per plant,
-    schedule and length (every controller on a seed meets the same plant)."""
-    episodes = []
-    for spec, _ in resolved:
-        episodes.append(EpisodeSpec(spec.controller, spec.scenario_schedule(), spec.seed, tuple(spec.gains.items())))
-    first = resolved[0][0]
+def _run_group(group: Sequence[RunSpec], workers: int, progress, pool) -> Iterator[list[tuple[int, RunResult]]]:
+    """One rig's specs in batches, with one ideal reference per plant, schedule and length (every
+    controller on a seed meets the same plant)."""
+    episodes = [EpisodeSpec(s.controller, s.scenario_schedule(), s.seed, tuple(s.gains.items())) for s in group]
+    first = group[0]
     settings = first.env_kwargs()
     del settings["scenario"]
     for batch in run_batches(episodes, settings, workers, progress):
@@ -244,7 +228,5 @@ def _run_group(
                 continue
             reference = references[key]
             metrics = compute_metrics(trajectory, reference)
-            out.append(
-                (i, RunResult(group[i], metrics, None, resolved[i][1], math.nan, versions(), trajectory, reference))
-            )
+            out.append((i, RunResult(group[i], metrics, None, {}, math.nan, versions(), trajectory, reference)))
         yield out

@@ -1,5 +1,5 @@
 """The comparison as Markdown, JSON and figures (``microg compare --out``); it computes nothing that
-:mod:`microg_env.analysis.comparison` does not."""
+:mod:`microg_env.experiments.comparison` does not."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from microg_env.analysis.comparison import QUANTITIES, X_WINDOW_S, Comparison
 from microg_env.analysis.paired import Paired
 from microg_env.analysis.plots import figure_class, save_figure
+from microg_env.experiments.comparison import QUANTITIES, X_WINDOW_S, Comparison
 from microg_env.files import check_output_folder, replace_folder
 
 #: What a comparison folder holds.

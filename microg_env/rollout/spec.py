@@ -22,8 +22,8 @@ from microg_env import validate
 from microg_env.controllers.pid import PIDGains
 from microg_env.controllers.registry import BASELINES, check_controller_name
 from microg_env.envs.core import check_control_period
-from microg_env.envs.observation import SENSOR_SETS
 from microg_env.imperfections import IMPERFECTION_NAMES, PRESETS, DomainRandomization, Imperfections
+from microg_env.interface import SENSOR_SETS
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides
 from microg_env.scenarios import LoadStep, Scenario, comparison_scenarios
 from microg_env.sim.model import check_physics_step

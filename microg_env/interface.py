@@ -1,0 +1,87 @@
+"""The contract between the environment and its controllers: what an observation holds, what an
+action means, and the spaces both are drawn from.
+
+The environment (:mod:`microg_env.envs`) writes observations and reads actions; the controllers
+(:mod:`microg_env.controllers`) read observations and write actions. Both import this module and
+neither imports the other for it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from gymnasium import spaces
+
+from microg_env.params import ScrewStageParams
+
+#: Observation entries and the scale each is divided by (SI units / scale = order one).
+OBSERVATION_SCALES: dict[str, float] = {
+    "x": 1e-4,  # grating ruler, m (100 um)
+    "x_rate": 1e-3,  # its backward difference, m/s
+    "support_position": 0.1,  # servo encoder, m above touchdown
+    "support_velocity": 0.1,  # encoder backward difference, m/s
+    "lander_accel": 0.1,  # accelerometer with g removed, m/s^2 (up positive)
+    "pad_force": 100.0,  # pad force sensor, N
+    "height": 0.1,  # foot height from encoder + ruler, m
+    "placed_load": 1.0,  # test weights placed so far, kg
+    "previous_action": 1.0,  # the agent's previous action
+    # the base controller's speed command (residual mode; else 0), m/s: the paper's maximum speed
+    "base_command": ScrewStageParams().max_speed_m_per_s,
+}
+OBSERVATION_INDEX = {name: i for i, name in enumerate(OBSERVATION_SCALES)}
+SCALES = np.array(list(OBSERVATION_SCALES.values()))
+#: The rig's sensor sets, by the observation entries each lacks (they read 0). ``extended``: every
+#: sensor above; ``paper``: the paper's rig, which closes its loops on the grating ruler and the
+#: servo encoder only (Section 4.1), with no pad force sensor and no accelerometer.
+SENSOR_SETS: dict[str, tuple[str, ...]] = {"extended": (), "paper": ("lander_accel", "pad_force")}
+
+#: Drive speed that the action +-1 stands for in the speed action mode, m/s: the paper's rig's
+#: maximum (Section 4.1), a fixed unit of the action whatever rig is simulated (a slower drive
+#: saturates on its own).
+MAX_SPEED_M_S = ScrewStageParams().max_speed_m_per_s
+#: The x setpoint that the action +-1 stands for in the residual action mode, m (the default of
+#: the environment's ``residual_limit_m``).
+RESIDUAL_LIMIT_M = 1e-6
+
+
+def action_space() -> spaces.Box:
+    """One rig's action: the drive's speed reference or the residual x setpoint, in units above."""
+    return spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+
+
+def observation_space() -> spaces.Box:
+    """One rig's observation: :data:`OBSERVATION_SCALES`'s entries, each divided by its scale."""
+    return spaces.Box(-np.inf, np.inf, shape=(len(SCALES),), dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class Readings:
+    """Observations (n, 10) in SI units (OBSERVATION_SCALES), one (n,) array per reading."""
+
+    x_m: np.ndarray  # grating ruler
+    x_rate_m_s: np.ndarray
+    support_position_m: np.ndarray  # servo encoder, above touchdown
+    support_velocity_m_s: np.ndarray
+    lander_accel_m_s2: np.ndarray  # accelerometer, g removed, up positive
+    pad_force_n: np.ndarray
+    foot_height_m: np.ndarray
+    placed_load_kg: np.ndarray
+
+    @classmethod
+    def of(cls, observations: np.ndarray) -> Readings:
+        si = observations * SCALES  # float64
+
+        def get(name: str) -> np.ndarray:
+            return si[:, OBSERVATION_INDEX[name]]
+
+        return cls(
+            get("x"),
+            get("x_rate"),
+            get("support_position"),
+            get("support_velocity"),
+            get("lander_accel"),
+            get("pad_force"),
+            get("height"),
+            get("placed_load"),
+        )
