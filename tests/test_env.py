@@ -1,6 +1,8 @@
 """The Gymnasium environment: conformance, determinism, copies, vectorisation, bad input, failures."""
 
 import copy
+import dataclasses
+import inspect
 import itertools
 import os
 import pickle
@@ -17,6 +19,8 @@ from gymnasium.utils.env_checker import check_env
 from microg_env import Imperfections, LoadStep, Scenario
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.envs.settings import TaskSettings
+from microg_env.envs.vector import MicroGravityLandingVectorEnv
 from microg_env.imperfections import DomainRandomization
 from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES, Readings
 from microg_env.params import RigParams
@@ -156,6 +160,28 @@ def test_observation_is_the_sensors_scaled():
     obs, _, _, _, info = env.step(np.array([0.2], dtype=np.float32))
     assert obs[8] == pytest.approx(0.2)
     assert obs[9] == 0.0  # no base controller in speed mode
+
+
+def test_task_settings_own_every_default_and_both_envs_pass_them_through():
+    """One owner: the envs' signatures hold no task default; what they run with is TaskSettings'."""
+    env_parameters = inspect.signature(MicroGravityLandingEnv).parameters
+    assert set(env_parameters) == {"render_mode", "width", "height", "camera_name", "settings"}
+    vector_parameters = inspect.signature(MicroGravityLandingVectorEnv).parameters
+    assert set(vector_parameters) == {"num_envs", "autoreset_mode", "scenarios", "nthread", "render_mode", "kwargs"}
+    defaults, env = TaskSettings(), MicroGravityLandingEnv()
+    vector = MicroGravityLandingVectorEnv(num_envs=2, decision_period=3)
+    for field in dataclasses.fields(TaskSettings):
+        expected = getattr(defaults, field.name)
+        assert getattr(env.settings, field.name) == expected, field.name
+        if field.name != "decision_period":
+            assert getattr(vector.core.settings, field.name) == expected, field.name
+    assert vector.core.decision_period == 3
+    assert env.control_period_s == defaults.control_period_s
+    assert env.frame_skip == defaults.frame_skip
+    with pytest.raises(TypeError, match="not_a_setting"):
+        MicroGravityLandingEnv(not_a_setting=1)
+    with pytest.raises(ValueError, match="xml_file"):  # checked once, for the vector env too
+        MicroGravityLandingVectorEnv(num_envs=2, xml_file="missing.xml")
 
 
 def test_readings_decode_observations_into_the_infos_si_values():

@@ -13,7 +13,7 @@ reward and termination are array functions over the rigs being stepped. The phys
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -21,19 +21,18 @@ import numpy as np
 
 from microg_env import validate
 from microg_env.controllers.base import tell_plants
-from microg_env.controllers.registry import BASELINES, make_controller
+from microg_env.controllers.registry import make_controller
 from microg_env.envs import period
-from microg_env.imperfections import DomainRandomization, Imperfections, apply_imperfections
-from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, RESIDUAL_LIMIT_M, SCALES, SENSOR_SETS
-from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, MAX_CONTROL_STEPS, PHYSICS_STEP_S, RigParams
-from microg_env.scenarios import LoadStep, Scenario, ScenarioSampler
-from microg_env.scenarios import condition as paper_condition
+from microg_env.envs.settings import TaskSettings
+from microg_env.imperfections import apply_imperfections
+from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, SCALES, SENSOR_SETS
+from microg_env.params import MAX_CONTROL_STEPS, RigParams
+from microg_env.scenarios import LoadStep, Scenario
 from microg_env.sim.limits import check_pad
 from microg_env.sim.model import (
     SLEW_PARAMETER,
     Rig,
     build_rig,
-    check_physics_step,
     flexible_unit,
     validate_loads,
 )
@@ -45,8 +44,23 @@ from microg_env.validate import FieldError
 STOP_MARGIN_M = 1e-4
 #: Clearance the start height keeps above the pad and above every load's switch height, m.
 START_CLEARANCE_M = 1e-3
-#: The actions the environment takes (``action_mode``).
-ACTION_MODES = ("speed", "residual")
+#: The settings a core (and each environment) shows as attributes, read from its TaskSettings.
+TASK_ATTRIBUTES = (
+    "scenario_sampler",
+    "imperfections",
+    "domain_randomization",
+    "sensor_set",
+    "physics_step_s",
+    "control_period_s",
+    "frame_skip",
+    "decision_period",
+    "action_mode",
+    "base_controller",
+    "residual_limit_m",
+    "reward_scale_m",
+    "reset_noise_scale",
+    "xml_file",
+)
 #: Why an episode terminated, by code (0: it did not).
 TERMINATION_REASONS = (None, "guide_stroke_limit", "screw_stroke_limit", "pad_bottomed_out")
 _REASONS = np.array(TERMINATION_REASONS, dtype=object)  # indexed by the codes: new object arrays
@@ -94,65 +108,34 @@ class LandingCore:
     def __init__(
         self,
         num_rigs: int = 1,
-        condition: int = 1,
-        scenario: Scenario | None = None,
-        scenario_sampler: ScenarioSampler | str | Mapping | None = None,
-        control_period_s: float = CONTROL_PERIOD_S,
-        physics_step_s: float = PHYSICS_STEP_S,
-        decision_period: int = 1,
-        action_mode: str = "speed",
-        base_controller: str = "pid",
-        residual_limit_m: float = RESIDUAL_LIMIT_M,
-        imperfections: Imperfections | Mapping | None = None,
-        domain_randomization: DomainRandomization | Mapping | bool | str | None = None,
-        sensor_set: str = "extended",
-        params: RigParams | None = None,
-        xml_file: str | None = None,
-        reward_scale_m: float = 1e-8,
-        reset_noise_scale: float = 0.0,
+        settings: TaskSettings | None = None,
         scenarios: Sequence[Scenario] | None = None,
         batched: bool = False,
         nthread: int = 0,
     ) -> None:
         if not batched and num_rigs != 1:
             raise ValueError(f"{num_rigs} rigs need batched=True (one MjData holds one rig)")
+        settings = TaskSettings() if settings is None else validate.instance("settings", settings, TaskSettings)
+        self.settings = settings
         self.num_rigs = num_rigs
-        self.scenario_sampler = _sampler(scenario_sampler)
-        if self.scenario_sampler is not None and (scenario is not None or scenarios is not None):
-            raise ValueError("give scenario (or scenarios) or scenario_sampler, not both")
-        if scenarios is not None and scenario is not None:
-            raise ValueError("give scenario or scenarios (one per rig), not both")
-        self.scenario = paper_condition(condition) if scenario is None else scenario
-        validate.instance("scenario", self.scenario, Scenario)
         if scenarios is not None:
+            if settings.scenario_sampler is not None:
+                raise ValueError("give scenario (or scenarios) or scenario_sampler, not both")
+            if settings.scenario is not None:
+                raise ValueError("give scenario or scenarios (one per rig), not both")
             scenarios = tuple(scenarios)
             if len(scenarios) != num_rigs:
                 raise ValueError(f"scenarios must give one Scenario per rig ({num_rigs}), got {len(scenarios)}")
             for i, each in enumerate(scenarios):
                 validate.instance(f"scenarios[{i}]", each, Scenario)
-            self.scenario = scenarios[0]
-        self.scenarios = scenarios if scenarios is not None else (self.scenario,) * num_rigs
-        self.imperfections = _imperfections(imperfections)
-        self.domain_randomization = _randomization(domain_randomization)
-        self.sensor_set = validate.choice("sensor_set", sensor_set, tuple(SENSOR_SETS))
-        self._missing = np.array([OBSERVATION_INDEX[name] for name in SENSOR_SETS[sensor_set]], dtype=np.int64)
-        self.base_params = RigParams() if params is None else params
-        validate.instance("params", self.base_params, RigParams)
-        self.physics_step_s = check_physics_step(physics_step_s)
-        self.control_period_s = check_control_period(control_period_s, self.physics_step_s)
-        self.frame_skip = round(self.control_period_s / self.physics_step_s)
-        self.decision_period = validate.integer("decision_period", decision_period, 1, 1000)
-        self.action_mode = validate.choice("action_mode", action_mode, ACTION_MODES)
-        self.base_controller = validate.choice("base_controller", base_controller, BASELINES)
-        self.residual_limit_m = validate.positive("residual_limit_m", residual_limit_m, "m", 1e-3)
-        self.reward_scale_m = validate.between("reward_scale_m", reward_scale_m, 1e-12, 1e-3, "m")
-        self.reset_noise_scale = max(_check_reset_noise(reset_noise_scale, s) for s in set(self.scenarios))
-        if self.scenario_sampler is not None and self.reset_noise_scale > 0:
-            raise ValueError(
-                f"reset_noise_scale {reset_noise_scale!r} m: a scenario_sampler draws the start height itself "
-                "(its descent_height_m range); give one or the other"
-            )
-        self.xml_file = None if xml_file is None else str(xml_file)
+        self.scenarios = scenarios if scenarios is not None else (settings.schedule,) * num_rigs
+        self.scenario = self.scenarios[0]
+        for name in TASK_ATTRIBUTES:
+            setattr(self, name, getattr(settings, name))
+        self.base_params = settings.params
+        self._missing = np.array([OBSERVATION_INDEX[name] for name in SENSOR_SETS[self.sensor_set]], dtype=np.int64)
+        for each in set(self.scenarios):
+            _check_reset_noise(self.reset_noise_scale, each)
 
         schedules = tuple(dict.fromkeys(self.scenarios))
         nominal = [apply_imperfections(s.rig_params(self.base_params), self.imperfections) for s in schedules]
@@ -184,7 +167,9 @@ class LandingCore:
         self._drift_dof = rig.screw_dof if params.balancer.placement == "frame_support" else rig.qzs_dof
         self._accel_adr = int(model.sensor_adr[model.sensor("lander_accel").id]) + 2
         self._force_adr = int(model.sensor_adr[model.sensor("pad_force").id])
-        self.base = make_controller(self.base_controller, self.control_period_s) if action_mode == "residual" else None
+        self.base = (
+            make_controller(self.base_controller, self.control_period_s) if self.action_mode == "residual" else None
+        )
 
         n = num_rigs
         #: Each rig's episode (None before its first reset).
@@ -477,56 +462,6 @@ def check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
     if not np.isfinite(values).all():
         raise ValueError(f"action must be finite, got {float(values[~np.isfinite(values)][0])!r}")
     return np.minimum(np.maximum(values, -1.0), 1.0)  # out-of-range actions are clipped to the drive's range
-
-
-def _sampler(value: ScenarioSampler | str | Mapping | None) -> ScenarioSampler | None:
-    if value is None or isinstance(value, ScenarioSampler):
-        return value
-    if value == "training":
-        return ScenarioSampler()
-    if isinstance(value, Mapping):
-        return ScenarioSampler(**{k: tuple(v) if isinstance(v, list) else v for k, v in value.items()})
-    raise ValueError(f"scenario_sampler must be a ScenarioSampler, 'training' or a dict, got {value!r}")
-
-
-def _imperfections(value: Imperfections | Mapping | None) -> Imperfections:
-    if value is None:
-        return Imperfections()
-    if isinstance(value, Mapping):
-        return Imperfections(**value)
-    return validate.instance("imperfections", value, Imperfections)
-
-
-def _randomization(value: DomainRandomization | Mapping | bool | str | None) -> DomainRandomization | None:
-    if value is None or value is False:
-        return None
-    if value is True:
-        return DomainRandomization()
-    if isinstance(value, str):  # a preset by name (a YAML file can name it)
-        return DomainRandomization.preset(value)
-    if isinstance(value, Mapping):
-        return DomainRandomization(**value)
-    return validate.instance("domain_randomization", value, DomainRandomization)
-
-
-def check_control_period(control_period_s: float, physics_step_s: float) -> float:
-    """``control_period_s`` if the RTX timer offers it and it is a whole number of physics steps."""
-    low, high = CONTROL_PERIOD_RANGE_S
-    period = validate.positive("control_period_s", control_period_s, "s")
-    if not low - 1e-12 <= period <= high + 1e-12:
-        raise FieldError(
-            f"control_period_s must be in [{low:g}, {high:g}] s (the RTX timer's 100 us to 10 ms), "
-            f"got {control_period_s!r}",
-            "control_period_s",
-        )
-    steps = period / physics_step_s
-    if abs(steps - round(steps)) > 1e-6 * steps:
-        raise FieldError(
-            f"control_period_s {control_period_s!r} s must be a whole number of physics steps of {physics_step_s:g} s",
-            "control_period_s",
-            "physics_step_s",
-        )
-    return period
 
 
 def _check_reset_noise(reset_noise_scale: float, scenario: Scenario) -> float:

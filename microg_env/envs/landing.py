@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Mapping
-from pathlib import Path
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -13,18 +11,17 @@ import numpy as np
 from gymnasium.error import ResetNeeded
 
 from microg_env import validate
-from microg_env.envs.core import INFO_KEYS, TERMINATION_REASONS, LandingCore, check_actions
+from microg_env.envs.core import INFO_KEYS, TASK_ATTRIBUTES, TERMINATION_REASONS, LandingCore, check_actions
 from microg_env.envs.period import x_reward
-from microg_env.imperfections import DomainRandomization, Imperfections
+from microg_env.envs.settings import TaskSettings
 from microg_env.interface import (
     OBSERVATION_INDEX,
     OBSERVATION_SCALES,
-    RESIDUAL_LIMIT_M,
     action_space,
     observation_space,
 )
-from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
-from microg_env.scenarios import Scenario, ScenarioSampler
+from microg_env.params import RigParams
+from microg_env.scenarios import Scenario
 
 __all__ = ["OBSERVATION_INDEX", "OBSERVATION_SCALES", "MicroGravityLandingEnv", "x_reward"]
 
@@ -99,27 +96,29 @@ class MicroGravityLandingEnv(gym.Env):
     conditions), at any control period.
 
     ## Arguments
-    ``gym.make("microg_env:MicroGravityLanding-v1", **kwargs)`` with
+    ``gym.make("microg_env:MicroGravityLanding-v1", **kwargs)``: the keywords are the fields of
+    :class:`~microg_env.envs.settings.TaskSettings`, which owns their defaults (``TaskSettings()``
+    shows them), plus rendering's:
 
-    | argument | default | meaning |
-    |---|---|---|
-    | ``condition`` | 1 | the paper's condition 1, 2 or 3 (unless ``scenario`` or ``scenario_sampler`` is given) |
-    | ``scenario`` | None | a custom ``Scenario`` (load schedule, descent height, duration, overrides) |
-    | ``scenario_sampler`` | None | a ``ScenarioSampler`` ("training", or its fields as a dict): a schedule per reset |
-    | ``control_period_s`` | 1e-3 | control period: the paper's 1000, 500, 200 or 100 us, up to 10 ms |
-    | ``physics_step_s`` | 1e-4 | physics step; it must divide the control period |
-    | ``decision_period`` | 1 | control periods an action is held (the base controller still runs every one) |
-    | ``action_mode`` | ``"speed"`` | ``"speed"`` or ``"residual"`` (see Action Space) |
-    | ``base_controller`` | ``"pid"`` | the controller a residual action moves the setpoint of |
-    | ``residual_limit_m`` | 1e-6 | the setpoint an action of +-1 stands for, m |
-    | ``imperfections`` | ``Imperfections()`` | which non-ideal effects are on (or their flags as a dict) |
-    | ``domain_randomization`` | None | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
-    | ``sensor_set`` | ``"extended"`` | ``"paper"``: ruler and encoder only (pad force and accelerometer read 0) |
-    | ``params`` | ``RigParams()`` | the rig (the scenario's explicit overrides are applied on top) |
-    | ``xml_file`` | None | an MJCF template other than the packaged ``scene.xml`` |
-    | ``reward_scale_m`` | 1e-8 | x0 of the reward, m |
-    | ``reset_noise_scale`` | 0.0 | half-width of the start-height perturbation, m |
-    | ``render_mode``, ``width``, ``height``, ``camera_name`` | None, 640, 480, "side" | rendering |
+    | argument | meaning |
+    |---|---|
+    | ``condition`` | the paper's condition 1, 2 or 3 (unless ``scenario`` or ``scenario_sampler`` is given) |
+    | ``scenario`` | a custom ``Scenario`` (load schedule, descent height, duration, overrides) |
+    | ``scenario_sampler`` | a ``ScenarioSampler`` ("training", or its fields as a dict): a schedule per reset |
+    | ``control_period_s`` | control period: the paper's 1000, 500, 200 or 100 us, up to 10 ms |
+    | ``physics_step_s`` | physics step; it must divide the control period |
+    | ``decision_period`` | control periods an action is held (the base controller still runs every one) |
+    | ``action_mode`` | ``"speed"`` or ``"residual"`` (see Action Space) |
+    | ``base_controller`` | the controller a residual action moves the setpoint of |
+    | ``residual_limit_m`` | the setpoint an action of +-1 stands for, m |
+    | ``imperfections`` | which non-ideal effects are on (or their flags as a dict) |
+    | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
+    | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force and accelerometer read 0) |
+    | ``params`` | the rig (the scenario's explicit overrides are applied on top) |
+    | ``xml_file`` | an MJCF template other than the packaged ``scene.xml`` |
+    | ``reward_scale_m`` | x0 of the reward, m |
+    | ``reset_noise_scale`` | half-width of the start-height perturbation, m |
+    | ``render_mode``, ``width``, ``height``, ``camera_name`` | rendering (None, 640, 480, "side") |
 
     ``info`` carries the reward and the true physical state: ``time_s``, ``x_m``,
     ``foot_height_m``, ``lander_velocity_m_s``, ``lander_accel_m_s2``, ``accelerometer_m_s2`` (what
@@ -149,61 +148,27 @@ class MicroGravityLandingEnv(gym.Env):
 
     def __init__(
         self,
-        condition: int = 1,
-        scenario: Scenario | None = None,
-        scenario_sampler: ScenarioSampler | str | Mapping | None = None,
-        control_period_s: float = CONTROL_PERIOD_S,
-        physics_step_s: float = PHYSICS_STEP_S,
-        decision_period: int = 1,
-        action_mode: str = "speed",
-        base_controller: str = "pid",
-        residual_limit_m: float = RESIDUAL_LIMIT_M,
-        imperfections: Imperfections | Mapping | None = None,
-        domain_randomization: DomainRandomization | Mapping | bool | str | None = None,
-        sensor_set: str = "extended",
-        params: RigParams | None = None,
-        xml_file: str | None = None,
-        reward_scale_m: float = 1e-8,
-        reset_noise_scale: float = 0.0,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
         camera_name: str = "side",
+        **settings: Any,
     ) -> None:
         if render_mode is not None:
             validate.choice("render_mode", render_mode, tuple(self.metadata["render_modes"]))
         if render_mode == "human":
             _check_display()
         self.render_mode = render_mode
-        if xml_file is not None and (Path(str(xml_file)).suffix.lower() != ".xml" or not Path(str(xml_file)).is_file()):
-            raise ValueError(f"xml_file {str(xml_file)!r} is not an .xml file")
         self._render_size = (
             validate.integer("width", width, 1, MAX_RENDER_PIXELS),
             validate.integer("height", height, 1, MAX_RENDER_PIXELS),
         )
         self._camera_name = validate.instance("camera_name", camera_name, str)
         self._renderer = None
-        self.core = LandingCore(
-            1,
-            condition=condition,
-            scenario=scenario,
-            scenario_sampler=scenario_sampler,
-            control_period_s=control_period_s,
-            physics_step_s=physics_step_s,
-            decision_period=decision_period,
-            action_mode=action_mode,
-            base_controller=base_controller,
-            residual_limit_m=residual_limit_m,
-            imperfections=imperfections,
-            domain_randomization=domain_randomization,
-            sensor_set=sensor_set,
-            params=params,
-            xml_file=xml_file,
-            reward_scale_m=reward_scale_m,
-            reset_noise_scale=reset_noise_scale,
-        )
+        self.core = LandingCore(1, TaskSettings(**settings))
         core = self.core
-        for name in SETTINGS:
+        self.settings = core.settings
+        for name in (*TASK_ATTRIBUTES, "scenario", "base_params"):
             setattr(self, name, getattr(core, name))
         self.rig = core.rig
         #: Simulated seconds one ``step`` advances: the control period times the decision period.
@@ -303,27 +268,6 @@ class MicroGravityLandingEnv(gym.Env):
         state = self.__dict__.copy()
         state["_renderer"] = None
         return state
-
-
-#: Settings the environment shows as attributes, owned by its core.
-SETTINGS = (
-    "scenario",
-    "scenario_sampler",
-    "imperfections",
-    "domain_randomization",
-    "sensor_set",
-    "base_params",
-    "physics_step_s",
-    "control_period_s",
-    "frame_skip",
-    "decision_period",
-    "action_mode",
-    "base_controller",
-    "residual_limit_m",
-    "reward_scale_m",
-    "reset_noise_scale",
-    "xml_file",
-)
 
 
 def _check_display() -> None:

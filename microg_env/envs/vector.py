@@ -22,6 +22,7 @@ from gymnasium.vector.utils import batch_space
 
 from microg_env import validate
 from microg_env.envs.core import INFO_KEYS, LandingCore, check_actions
+from microg_env.envs.settings import TaskSettings
 from microg_env.interface import action_space, observation_space
 from microg_env.scenarios import Scenario
 
@@ -68,7 +69,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
             modes = ", ".join(mode.value for mode in AutoresetMode)
             raise ValueError(f"autoreset_mode must be one of {modes}, got {autoreset_mode!r}") from None
         nthread = validate.integer("nthread", nthread, 0, 1024)
-        self.core = LandingCore(self.num_envs, scenarios=scenarios, batched=True, nthread=nthread, **kwargs)
+        self.core = LandingCore(self.num_envs, TaskSettings(**kwargs), scenarios, batched=True, nthread=nthread)
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         self.render_mode = None
         self.single_action_space = action_space()

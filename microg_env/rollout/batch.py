@@ -18,6 +18,7 @@ from gymnasium.utils import seeding
 
 from microg_env.controllers.base import tell_plants
 from microg_env.envs.core import TERMINATION_REASONS, LandingCore
+from microg_env.envs.settings import TaskSettings
 from microg_env.params import RigParams
 from microg_env.scenarios import Scenario
 from microg_env.trajectory import CHANNELS, Trajectory
@@ -80,7 +81,7 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
     from microg_env.controllers.registry import make_controller
 
     n = len(episodes)
-    core = LandingCore(n, scenarios=[e.scenario for e in episodes], batched=True, nthread=nthread, **settings)
+    core = LandingCore(n, TaskSettings(**settings), [e.scenario for e in episodes], batched=True, nthread=nthread)
     rngs = [seeding.np_random(e.seed)[0] for e in episodes]
     every = np.arange(n)
     core.reset(every, rngs)

@@ -21,7 +21,7 @@ from typing import Any
 from microg_env import validate
 from microg_env.controllers.pid import PIDGains
 from microg_env.controllers.registry import BASELINES, check_controller_name
-from microg_env.envs.core import check_control_period
+from microg_env.envs.settings import check_control_period
 from microg_env.imperfections import IMPERFECTION_NAMES, PRESETS, DomainRandomization, Imperfections
 from microg_env.interface import SENSOR_SETS
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides

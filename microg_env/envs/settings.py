@@ -1,0 +1,149 @@
+"""The landing task's settings: one frozen record, checked once, owned here.
+
+:class:`TaskSettings` holds every keyword argument of ``MicroGravityLanding-v1`` but rendering
+(the class docstring of :class:`~microg_env.envs.landing.MicroGravityLandingEnv` says what each
+means), with its default; both environments take them as keyword arguments and pass them through
+to :class:`~microg_env.envs.core.LandingCore`. Times are seconds and lengths metres.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from microg_env import validate
+from microg_env.controllers.registry import BASELINES
+from microg_env.imperfections import DomainRandomization, Imperfections
+from microg_env.interface import RESIDUAL_LIMIT_M, SENSOR_SETS
+from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
+from microg_env.scenarios import Scenario, ScenarioSampler
+from microg_env.scenarios import condition as paper_condition
+from microg_env.sim.model import check_physics_step
+from microg_env.validate import FieldError
+
+#: The actions the environment takes (``action_mode``).
+ACTION_MODES = ("speed", "residual")
+
+
+@dataclass(frozen=True)
+class TaskSettings:
+    """The task's settings, checked and normalised when made: ``scenario_sampler``,
+    ``imperfections`` and ``domain_randomization`` become their records (a name, a mapping or
+    True as the environment's keywords accept), ``params`` a :class:`RigParams`; an invalid value
+    raises a :class:`~microg_env.validate.FieldError` naming it."""
+
+    condition: int = 1
+    scenario: Scenario | None = None
+    scenario_sampler: ScenarioSampler | str | Mapping | None = None
+    control_period_s: float = CONTROL_PERIOD_S
+    physics_step_s: float = PHYSICS_STEP_S
+    decision_period: int = 1
+    action_mode: str = "speed"
+    base_controller: str = "pid"
+    residual_limit_m: float = RESIDUAL_LIMIT_M
+    imperfections: Imperfections | Mapping | None = None
+    domain_randomization: DomainRandomization | Mapping | bool | str | None = None
+    sensor_set: str = "extended"
+    params: RigParams | None = None
+    xml_file: str | None = None
+    reward_scale_m: float = 1e-8
+    reset_noise_scale: float = 0.0
+
+    def __post_init__(self) -> None:
+        def put(name: str, value: Any) -> None:
+            object.__setattr__(self, name, value)
+
+        put("scenario_sampler", _sampler(self.scenario_sampler))
+        if self.scenario_sampler is not None and self.scenario is not None:
+            raise ValueError("give scenario (or scenarios) or scenario_sampler, not both")
+        if self.scenario is None:
+            paper_condition(self.condition)  # a condition of the paper's, or an error naming it
+        else:
+            validate.instance("scenario", self.scenario, Scenario)
+        put("imperfections", _imperfections(self.imperfections))
+        put("domain_randomization", _randomization(self.domain_randomization))
+        validate.choice("sensor_set", self.sensor_set, tuple(SENSOR_SETS))
+        put("params", RigParams() if self.params is None else self.params)
+        validate.instance("params", self.params, RigParams)
+        put("physics_step_s", check_physics_step(self.physics_step_s))
+        put("control_period_s", check_control_period(self.control_period_s, self.physics_step_s))
+        put("decision_period", validate.integer("decision_period", self.decision_period, 1, 1000))
+        validate.choice("action_mode", self.action_mode, ACTION_MODES)
+        validate.choice("base_controller", self.base_controller, BASELINES)
+        put("residual_limit_m", validate.positive("residual_limit_m", self.residual_limit_m, "m", 1e-3))
+        put("reward_scale_m", validate.between("reward_scale_m", self.reward_scale_m, 1e-12, 1e-3, "m"))
+        put("reset_noise_scale", validate.non_negative("reset_noise_scale", self.reset_noise_scale, "m"))
+        if self.scenario_sampler is not None and self.reset_noise_scale > 0:
+            raise FieldError(
+                f"reset_noise_scale {self.reset_noise_scale!r} m: a scenario_sampler draws the start height itself "
+                "(its descent_height_m range); give one or the other",
+                "reset_noise_scale",
+            )
+        if self.xml_file is not None:
+            path = Path(str(self.xml_file))
+            if path.suffix.lower() != ".xml" or not path.is_file():
+                raise FieldError(f"xml_file {str(self.xml_file)!r} is not an .xml file", "xml_file")
+            put("xml_file", str(self.xml_file))
+
+    @property
+    def schedule(self) -> Scenario:
+        """The fixed schedule: ``scenario``, else the paper's ``condition`` (a sampler draws its own)."""
+        return paper_condition(self.condition) if self.scenario is None else self.scenario
+
+    @property
+    def frame_skip(self) -> int:
+        """Physics steps per control period."""
+        return round(self.control_period_s / self.physics_step_s)
+
+
+
+def _sampler(value: ScenarioSampler | str | Mapping | None) -> ScenarioSampler | None:
+    if value is None or isinstance(value, ScenarioSampler):
+        return value
+    if value == "training":
+        return ScenarioSampler()
+    if isinstance(value, Mapping):
+        return ScenarioSampler(**{k: tuple(v) if isinstance(v, list) else v for k, v in value.items()})
+    raise ValueError(f"scenario_sampler must be a ScenarioSampler, 'training' or a dict, got {value!r}")
+
+
+def _imperfections(value: Imperfections | Mapping | None) -> Imperfections:
+    if value is None:
+        return Imperfections()
+    if isinstance(value, Mapping):
+        return Imperfections(**value)
+    return validate.instance("imperfections", value, Imperfections)
+
+
+def _randomization(value: DomainRandomization | Mapping | bool | str | None) -> DomainRandomization | None:
+    if value is None or value is False:
+        return None
+    if value is True:
+        return DomainRandomization()
+    if isinstance(value, str):  # a preset by name (a YAML file can name it)
+        return DomainRandomization.preset(value)
+    if isinstance(value, Mapping):
+        return DomainRandomization(**value)
+    return validate.instance("domain_randomization", value, DomainRandomization)
+
+
+def check_control_period(control_period_s: float, physics_step_s: float) -> float:
+    """``control_period_s`` if the RTX timer offers it and it is a whole number of physics steps."""
+    low, high = CONTROL_PERIOD_RANGE_S
+    period = validate.positive("control_period_s", control_period_s, "s")
+    if not low - 1e-12 <= period <= high + 1e-12:
+        raise FieldError(
+            f"control_period_s must be in [{low:g}, {high:g}] s (the RTX timer's 100 us to 10 ms), "
+            f"got {control_period_s!r}",
+            "control_period_s",
+        )
+    steps = period / physics_step_s
+    if abs(steps - round(steps)) > 1e-6 * steps:
+        raise FieldError(
+            f"control_period_s {control_period_s!r} s must be a whole number of physics steps of {physics_step_s:g} s",
+            "control_period_s",
+            "physics_step_s",
+        )
+    return period
