@@ -26,6 +26,7 @@ def test_every_benchmark_script_has_a_smoke_run() -> None:
 
 
 @pytest.mark.parametrize("name", sorted(SMOKE_ARGS))
+@pytest.mark.slow
 def test_benchmark_script_runs(name: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
     monkeypatch.syspath_prepend(str(BENCHMARKS))
     module = importlib.import_module(name)

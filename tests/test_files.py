@@ -107,6 +107,7 @@ def test_a_kill_between_the_two_renames_is_recovered(tmp_path):
     assert (out2 / "report.md").read_text() == "previous"
 
 
+@pytest.mark.slow
 def test_a_hard_kill_while_the_report_is_written_leaves_nothing_behind_after_the_next_run(tmp_path):
     out = tmp_path / "report"
     script = textwrap.dedent(

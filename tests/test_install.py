@@ -34,6 +34,7 @@ def wheel(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_wheel_contains_the_mjcf_and_its_type_marker(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     for name in ("assets/scene.xml", "assets/rig.xml", "py.typed"):
@@ -81,6 +82,7 @@ def _fresh_venv(env_dir: Path, install: list[str], cwd: Path) -> Path:
     return bindir
 
 
+@pytest.mark.slow
 def test_installed_wheel_builds_drops_and_runs_the_shipped_policy_from_another_folder(wheel, tmp_path):
     env_dir = tmp_path / "venv"
     bindir = _fresh_venv(env_dir, [str(wheel)], tmp_path)
@@ -115,6 +117,7 @@ def _quick_start_main_command() -> str:
 
 
 @pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+@pytest.mark.slow
 def test_a_fresh_clone_runs_the_quick_start(tmp_path):
     """The README's first command, in a fresh clone (no results/ folder: git ignores it); the
     dependencies are borrowed instead of downloaded, and the runs are shortened with --duration."""

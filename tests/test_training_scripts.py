@@ -19,6 +19,7 @@ TRAINING = Path(__file__).resolve().parents[1] / "training"
         ("returns_table", ["--seeds", "1", "--scenarios", "training"], "| zero residual (adaptive) | "),
     ],
 )
+@pytest.mark.slow
 def test_training_script_runs(name, args, expected, monkeypatch, capsys):
     monkeypatch.syspath_prepend(str(TRAINING))
     module = importlib.import_module(name)

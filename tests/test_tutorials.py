@@ -1,10 +1,12 @@
 """The tutorials in docs/tutorials run as written, each at a small size, and leave what they say
 they write (the issue's budget: three minutes together on a CPU). The campaign tutorial starts Ray:
-its test is in test_experiments.py, the one file whose tests start Ray, so that under
+its test is in experiments/test_experiments.py, the one file whose tests start Ray, so that under
 ``--dist loadfile`` they run one after another."""
 
 import json
 from pathlib import Path
+
+import pytest
 
 TUTORIALS = Path(__file__).resolve().parents[1] / "docs" / "tutorials"
 
@@ -17,6 +19,7 @@ def test_every_tutorial_is_tested():
     ]
 
 
+@pytest.mark.slow
 def test_quickstart_runs_an_episode_and_plots_it(tmp_path, run_tutorial):
     out = run_tutorial("01_quickstart.py", tmp_path, "--duration", "6")
     assert "one step = 0.001 s" in out
@@ -24,6 +27,7 @@ def test_quickstart_runs_an_episode_and_plots_it(tmp_path, run_tutorial):
     assert (tmp_path / "quickstart.png").read_bytes()[:4] == b"\x89PNG"
 
 
+@pytest.mark.slow
 def test_training_tutorial_trains_and_compares_paired_against_adaptive(tmp_path, run_tutorial):
     out = run_tutorial("02_train_residual.py", tmp_path, "--timesteps", "2048", "--seeds", "2", "--duration", "7")
     folder = tmp_path / "comparison"

@@ -98,7 +98,6 @@ class TaskSettings:
         return round(self.control_period_s / self.physics_step_s)
 
 
-
 def _sampler(value: ScenarioSampler | str | Mapping | None) -> ScenarioSampler | None:
     if value is None or isinstance(value, ScenarioSampler):
         return value

@@ -4,7 +4,7 @@ controller, gains or seed), and both return :class:`RunResult`: the metrics and 
 
 :func:`run` steps the single Gymnasium environment (it can render a video as it goes);
 :func:`run_many` steps the vector core (:func:`microg_env.rollout.batch.run_batches`). A spec gives
-the same trajectory either way, bit for bit (tests/test_vector.py, tests/test_experiments.py).
+the same trajectory either way, bit for bit (tests/envs/test_vector.py, tests/experiments/test_experiments.py).
 """
 
 from __future__ import annotations

@@ -33,6 +33,7 @@ def test_envelope_is_each_bins_min_mean_and_max():
     assert len(envelope(np.arange(50.0), np.arange(50.0))[0]) == 50 < ENVELOPE_BINS
 
 
+@pytest.mark.slow
 def test_run_figure_marks_the_events_and_labels_its_units(three_stage):
     trajectory, reference = three_stage
     events = run_events(trajectory)
@@ -80,6 +81,7 @@ def test_a_run_without_a_touchdown_says_so_in_the_zoom(three_stage):
     assert [t.get_text() for t in zoom.texts] == ["no touchdown in this run: nothing to zoom on"]
 
 
+@pytest.mark.slow
 def test_figure_3_draws_both_pads_as_bands_that_do_not_hide_each_other():
     from microg_env.paper import report, reproduction
 

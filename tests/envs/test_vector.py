@@ -48,6 +48,7 @@ def _rollout(env, actions, seed):
     ],
     ids=["speed-randomised", "speed-randomised-drive", "residual-feedforward"],
 )
+@pytest.mark.slow
 def test_each_rig_runs_exactly_the_single_envs_episode(kwargs):
     """Rig i seeded s + i gives the single env's episode seeded s + i, bit for bit."""
     n, seed = 3, 40
@@ -197,6 +198,7 @@ def test_vectorised_controllers_equal_one_controller_per_rig():
         np.testing.assert_allclose(together(observations[0])[2], apart[2](observations[0][2]), rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_a_batch_of_episodes_is_the_single_env_episode_of_each():
     """The comparison's batch (controllers, scenarios and randomised plants mixed in one batch)
     records each case exactly as the single-env harness does."""

@@ -30,6 +30,7 @@ def _run(condition: int = 3, duration_s: float | None = None, seed: int = 0, **k
     return run_with_metrics(env, make_controller("pid", env.control_period_s), seed=seed, duration_s=duration_s)[2]
 
 
+@pytest.mark.slow
 def test_ideal_rig_lands_as_the_ideal_microgravity_reference():
     """Every imperfection off: an ideal drive (no lag, no chatter). The landing matches the
     reference to 0.1 %; the descent differs from it only by the PID's own integral lag x = a/Ki,
@@ -60,6 +61,7 @@ def test_ideal_rig_with_the_feedforward_matches_the_reference_within_0_05_percen
 
 
 @pytest.mark.parametrize("condition", [1, 3])
+@pytest.mark.slow
 def test_metrics_at_the_default_physics_step_are_converged(condition):
     """Within 1 % (compensation errors within 0.02 percentage points) of a step four times finer.
 
@@ -94,6 +96,7 @@ def test_metrics_at_the_default_physics_step_are_converged(condition):
     assert rms_change <= 0.01 * fine.reference_rms_height_error_m + explained
 
 
+@pytest.mark.slow
 def test_guide_friction_measurably_changes_the_50_g_stage():
     """The drive's old dither averaged the guide's friction away; now it acts."""
     with_friction = _run(3, STAGE_1_S)
@@ -118,6 +121,7 @@ def test_eq17_read_literally_gives_the_papers_fast_descent():
     assert errors[1.0] < 0.0
 
 
+@pytest.mark.slow
 def test_balancer_drift_reaches_the_lander_only_when_the_balancer_carries_it():
     """A 0.5 K/h hall drifts the gas at 1.4e-4 K/s (the old premise, 1e-5, ignored that a lag
     delays a ramp without slowing it). Between frame and support the drive absorbs the drift; in
@@ -132,6 +136,7 @@ def test_balancer_drift_reaches_the_lander_only_when_the_balancer_carries_it():
     assert spreads["frame_support"] < 0.3
 
 
+@pytest.mark.slow
 def test_pid_is_robust_with_every_gain_doubled():
     """The tuning's gain margin: with the torque filter the old gains (Kp 198, Ki 20000) were not."""
     for name in ("pid", "pid-dom"):
@@ -145,6 +150,7 @@ def test_pid_is_robust_with_every_gain_doubled():
         assert metrics.flexible_unit_excursion_collision_m < 100e-6
 
 
+@pytest.mark.slow
 def test_stiff_pads_are_rejected_before_they_can_create_energy():
     stiff = CONDITIONS[1]
     params = replace(RigParams(), pad=replace(RigParams().pad, stiffness_n_per_m=1e9, damping_n_s_per_m=1e5))

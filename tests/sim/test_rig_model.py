@@ -147,6 +147,7 @@ def test_screw_continuous_torque_by_balancer_placement():
 
 
 @pytest.mark.parametrize("loads", [(0.49,), (1.0,), (0.05,), (0.05, 1.0)])
+@pytest.mark.slow
 def test_ideal_following_gives_the_ideal_descent(loads):
     """x held at 0 by the support: the lander falls at m_ext g / (M + m_ext) (Table 2)."""
     rig = build_rig(loads_kg=loads)

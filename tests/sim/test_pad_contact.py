@@ -18,6 +18,7 @@ SPEEDS = [0.005, 0.02, 0.0373, 0.06]
 
 @pytest.mark.parametrize("speed", SPEEDS)
 @pytest.mark.parametrize(("mass", "stiffness", "damping"), PADS)
+@pytest.mark.slow
 def test_drop_matches_closed_form(mass, stiffness, damping, speed):
     report = drop_test(mass, stiffness, damping, speed)
     assert abs(report.contact_time_s.rel_error) < 0.01
@@ -44,11 +45,13 @@ def test_flat_foot_makes_several_contact_points_throughout_the_impact():
 
 @pytest.mark.parametrize("load", [0.49, 4.9, 49.0])
 @pytest.mark.parametrize(("stiffness", "damping"), [(4666.0, 200.0), (10000.0, 900.0)])
+@pytest.mark.slow
 def test_static_sink_is_load_over_stiffness(load, stiffness, damping):
     params = replace(RigParams(), pad=PadParams(stiffness_n_per_m=stiffness, damping_n_s_per_m=damping))
     assert static_sink(params, load) == pytest.approx(load / stiffness, rel=0.02)
 
 
+@pytest.mark.slow
 def test_static_sink_exposes_the_impedance_trap():
     # With MuJoCo's usual impedance the impact can be tuned right while the sink is far off:
     # the solver scales every other force by about (1 - d) / (1 + (n - 1) d).

@@ -98,6 +98,7 @@ def test_stage_windows_skip_the_settling_and_stop_at_touchdown():
 
 
 @pytest.mark.parametrize("number", [1, 2, 3])
+@pytest.mark.slow
 def test_reference_falls_at_the_ideal_acceleration_of_each_stage(number):
     scenario = CONDITIONS[number]
     reference = _reference(scenario, 20.0)

@@ -21,6 +21,7 @@ def randomized():
     return compare(["pid", "feedforward"], ["condition-2"], seeds=2, randomize=True, duration_s=6.0)
 
 
+@pytest.mark.slow
 def test_every_controller_meets_the_same_plants_and_seeds(randomized):
     assert [(r.case.controller, r.case.seed) for r in randomized.results] == [
         ("pid", TEST_SEED),
@@ -54,6 +55,7 @@ def test_feedforward_beats_the_pid_on_a_short_randomised_run(randomized):
         assert ours.worst < min(r.values[name] for r in randomized.runs("pid")), name
 
 
+@pytest.mark.slow
 def test_parallel_workers_give_the_same_results():
     one = compare(["pid"], ["condition-2"], seeds=2, duration_s=4.5)
     two = compare(["pid"], ["condition-2"], seeds=2, duration_s=4.5, workers=2)
@@ -62,6 +64,7 @@ def test_parallel_workers_give_the_same_results():
     assert [r.case for r in one.results] == [r.case for r in two.results]
 
 
+@pytest.mark.slow
 def test_the_report_holds_the_table_ratios_figures_and_json(randomized, tmp_path):
     text = render_markdown(randomized)
     assert "| feedforward |" in text
@@ -97,6 +100,7 @@ def test_cli_compare_prints_json(capsys):
     assert data["scenarios"]["condition-3"]["duration_s"] == 0.5
 
 
+@pytest.mark.slow
 def test_cli_compare_pairs_against_the_reference_on_randomised_drives(capsys):
     """--randomize full --reference feedforward: the JSON and the table hold the paired statistics
     of the comparison; the oracle, told each drawn plant and drive, beats the feed-forward."""
@@ -198,6 +202,7 @@ def test_the_shipped_policy_beats_the_pid_fivefold_on_held_out_cases():
     assert learned <= feedforward
 
 
+@pytest.mark.slow
 def test_cli_compare_runs_held_out_schedules_on_wider_plants(capsys):
     """--randomize wider on the fastest held-out impact: the plants come from the wider ranges (the
     JSON says so) and each seed draws its own."""

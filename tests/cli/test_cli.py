@@ -23,7 +23,7 @@ from microg_env.cli import main
 from microg_env.cli.common import DROP_OPTIONS, RUN_OPTIONS, naming
 from microg_env.validate import FieldError
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _run(*args: str, cwd: Path = REPO, environment: dict[str, str] | None = None) -> subprocess.CompletedProcess:
@@ -206,6 +206,7 @@ def _cases():
 
 
 @pytest.mark.parametrize(("args", "word"), list(_cases()), ids=lambda v: " ".join(v) if isinstance(v, list) else v)
+@pytest.mark.slow
 def test_bad_input_is_one_line_naming_the_option_exit_2_and_writes_nothing(args, word, tmp_path):
     folder = tmp_path / "cwd"
     folder.mkdir()
@@ -299,6 +300,7 @@ def test_run_json_keys_and_signs(capsys, run_json_keys):
     assert result["collision_accel_m_s2"] > 0  # the pad pushes up
 
 
+@pytest.mark.slow
 def test_run_ending_on_the_pad_reports_null_with_reasons_not_wrong_numbers(capsys):
     """Condition 1 cut at 5.5 s ends during the first contact: it printed -11.6 % before."""
     assert main(["run", "--condition", "1", "--duration", "5.5", "--json"]) == 0
@@ -314,6 +316,7 @@ def test_run_ending_on_the_pad_reports_null_with_reasons_not_wrong_numbers(capsy
     assert "descent fit needs" in low["unavailable"]["descent_accel_m_s2[0]"]
 
 
+@pytest.mark.slow
 def test_run_custom_loads_table_and_plot(tmp_path, capsys):
     plot = tmp_path / "run.png"
     args = ["run", "--load", "0.05", "--load", "1.0@30", "--height", "60", "--duration", "4", "--plot", str(plot)]
@@ -345,6 +348,7 @@ def test_run_shows_its_progress_unless_quiet(capsys):
 
 
 @pytest.mark.parametrize("setting", [{"DISPLAY": ""}, {"DISPLAY": ":0", "MUJOCO_GL": "egl"}])
+@pytest.mark.slow
 def test_view_without_a_display_is_one_line_and_exit_2(setting):
     environment = {**os.environ, "WAYLAND_DISPLAY": ""} | setting
     result = _run("view", "--duration", "1", environment={key: value for key, value in environment.items() if value})
@@ -355,6 +359,7 @@ def test_view_without_a_display_is_one_line_and_exit_2(setting):
 
 
 @pytest.mark.skipif(shutil.which("Xvfb") is None, reason="needs Xvfb (Debian's xvfb; .ci/run installs it)")
+@pytest.mark.slow
 def test_view_shows_a_landing_in_the_viewer_under_xvfb_and_exits_cleanly(tmp_path):
     """microg view opens MuJoCo's passive viewer on a virtual screen, runs a second of condition 1
     paced to twice real time, closes the window and its thread, prints the metrics, exits 0."""
@@ -394,6 +399,7 @@ def test_a_closed_reader_ends_quietly(monkeypatch):
     assert cli.main(["drop"]) == 1
 
 
+@pytest.mark.slow
 def test_output_piped_into_a_closed_reader_leaves_no_traceback(tmp_path):
     errors = tmp_path / "stderr.txt"
     command = f"{sys.executable} -m microg_env.cli drop 2>{errors} | true"
@@ -401,6 +407,7 @@ def test_output_piped_into_a_closed_reader_leaves_no_traceback(tmp_path):
     assert "Traceback" not in errors.read_text()
 
 
+@pytest.mark.slow
 def test_reproduce_writes_its_report_when_its_progress_reader_goes_away(tmp_path):
     """`microg reproduce 2>&1 | head`: the progress bar's reader closes; the report is still written."""
     out = tmp_path / "report"
@@ -416,6 +423,7 @@ def test_reproduce_writes_its_report_when_its_progress_reader_goes_away(tmp_path
     assert (out / "report.md").is_file()
 
 
+@pytest.mark.slow
 def test_a_results_file_in_the_way_of_the_default_report_folder(tmp_path):
     (tmp_path / "results").write_text("not a folder")
     result = _run("reproduce", "--duration", "1", "--quiet", cwd=tmp_path)
@@ -424,6 +432,7 @@ def test_a_results_file_in_the_way_of_the_default_report_folder(tmp_path):
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_run_video_renders_the_landing_with_x_and_the_pad_force(tmp_path, capsys):
     from PIL import Image
 
@@ -439,6 +448,7 @@ def test_run_video_renders_the_landing_with_x_and_the_pad_force(tmp_path, capsys
     assert list(tmp_path.iterdir()) == [out]
 
 
+@pytest.mark.slow
 def test_run_randomize_draws_the_plant_from_the_seed(capsys):
     args = ["run", "--condition", "2", "--duration", "5.5", "--json", "--randomize"]
     values = []
@@ -451,6 +461,7 @@ def test_run_randomize_draws_the_plant_from_the_seed(capsys):
     assert nominal != values[0]
 
 
+@pytest.mark.slow
 def test_compare_writes_its_folder_and_replaces_an_earlier_one(tmp_path, capsys):
     out = tmp_path / "comparison"
     args = ["compare", "--controllers", "pid", "--scenarios", "condition-3", "--seeds", "1", "--duration", "0.3"]
@@ -461,6 +472,7 @@ def test_compare_writes_its_folder_and_replaces_an_earlier_one(tmp_path, capsys)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["comparison"]
 
 
+@pytest.mark.slow
 def test_train_and_resume_from_the_command_line(tmp_path, capsys):
     import yaml
 
@@ -554,6 +566,7 @@ def test_a_bare_microg_prints_its_help(capsys):
     assert "reproduce" in out
 
 
+@pytest.mark.slow
 def test_version_is_the_installed_distributions():
     """`microg --version` prints the version pip installed, which is the package's __version__."""
     with pytest.raises(SystemExit) as exit_info:
@@ -709,6 +722,7 @@ def _read_tree(folder: Path) -> dict[str, bytes]:
 
 
 @pytest.mark.parametrize(("case", "name", "key", "value"), list(_resume_cases()), ids=lambda v: v if " " in v else "")
+@pytest.mark.slow
 def test_a_generated_bad_run_folder_is_one_line_naming_its_file_and_is_left_unchanged(
     case, name, key, value, run_folder, tmp_path, capsys
 ):

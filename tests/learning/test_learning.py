@@ -24,7 +24,7 @@ from microg_env.learning.train import TrainingInterrupted, TrainSettings, resolv
 from microg_env.rollout.episode import run_episode
 
 pytest.importorskip("stable_baselines3")
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ENV_ID = "MicroGravityLanding-v1"
 RESIDUAL = {"action_mode": "residual", "base_controller": "feedforward", "decision_period": 5}
 
@@ -103,6 +103,7 @@ def _vec_env(**kwargs):
 
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
+@pytest.mark.slow
 def test_the_numpy_export_acts_as_stable_baselines3_does(algo):
     from stable_baselines3 import PPO, SAC
 
@@ -220,6 +221,7 @@ def ppo_run(tmp_path_factory):
     return folder, resumed, first, count_before
 
 
+@pytest.mark.slow
 def test_a_run_writes_every_artifact_of_the_zoos_layout(ppo_run):
     folder, _, _, _ = ppo_run
     assert folder.name == f"{ENV_ID}_1"
@@ -284,6 +286,7 @@ def test_resume_continues_the_step_count_the_statistics_and_the_log(ppo_run):
     assert second_session[0].startswith("#")  # the resumed session writes its own
 
 
+@pytest.mark.slow
 def test_sac_resumes_with_its_replay_buffer(tmp_path):
     from stable_baselines3 import SAC
 
@@ -300,6 +303,7 @@ def test_sac_resumes_with_its_replay_buffer(tmp_path):
     assert not buffer.exists()  # only the latest buffer is kept
 
 
+@pytest.mark.slow
 def test_ctrl_c_saves_a_checkpoint_that_resumes(tmp_path):
     def interrupt(done, total):
         if done >= 192:
@@ -331,12 +335,14 @@ def test_resumed_sessions_never_draw_reserved_seeds():
     assert min(seeds) >= 2**20  # above the validation (500+) and test (1000+) seeds
 
 
+@pytest.mark.slow
 def test_a_run_shorter_than_the_evaluation_period_still_exports_its_policy(tmp_path):
     folder = train(replace(_settings(tmp_path, "ppo", 128), eval_freq=10**6))
     assert (folder / "policy" / "policy.json").is_file()
     assert len(json.loads((folder / "evaluations.json").read_text())) == 1
 
 
+@pytest.mark.slow
 def test_an_interrupted_policy_export_leaves_the_previous_one(tmp_path, monkeypatch):
     from microg_env.learning import export
 
@@ -383,6 +389,7 @@ def test_a_file_asking_for_more_environments_than_a_run_takes_is_refused(tmp_pat
         resolve(TrainSettings(hyperparams=str(path)))
 
 
+@pytest.mark.slow
 def test_resume_refuses_what_it_cannot_continue(tmp_path):
     with pytest.raises(ValueError, match="no checkpoint"):
         train(_settings(tmp_path, "ppo", 128), resume_folder=tmp_path)
@@ -394,6 +401,7 @@ def test_resume_refuses_what_it_cannot_continue(tmp_path):
     assert json.loads((folder / "checkpoints" / "latest.json").read_text())["timesteps"] == 256
 
 
+@pytest.mark.slow
 def test_the_control_cost_is_the_tuners():
     from microg_env.rollout.episode import run_with_metrics
 
@@ -444,6 +452,7 @@ def test_rl_zoo3_trains_from_the_same_hyperparameter_file(tmp_path):
     assert "residual" in config
 
 
+@pytest.mark.slow
 def test_the_cli_progress_bar_names_the_default_algorithm_and_ends_where_the_run_does(tmp_path, capsys):
     """Without --algo the bar used to read 'train None', args.yml stored n_envs: null, and a target
     that is not a whole number of rollouts overran the bar (200 steps asked, 256 run: '256step')."""
@@ -485,6 +494,7 @@ def test_planned_steps_is_where_stable_baselines3_stops(algo, n_envs, n_steps, s
     assert planned_steps(params, start) == planned
 
 
+@pytest.mark.slow
 def test_a_run_stopped_in_its_final_evaluation_is_finished_by_a_resume(tmp_path, monkeypatch):
     """Ctrl-C in the end-of-run evaluation used to escape as a traceback, and the run (checkpointed
     at its target) could not be resumed: 'already has 128 steps'. Now it stops like any Ctrl-C and a
@@ -509,6 +519,7 @@ def test_a_run_stopped_in_its_final_evaluation_is_finished_by_a_resume(tmp_path,
         train(settings, resume_folder=folder)
 
 
+@pytest.mark.slow
 def test_a_resumed_run_evaluates_its_last_model_even_under_the_evaluation_period(tmp_path):
     """A run evaluated at 128 steps and resumed to 256 with evaluations every 100 000 steps used to
     keep the 128-step evaluation as its last: the second session's training was never evaluated."""

@@ -91,6 +91,7 @@ def pid_runs():
     return runs
 
 
+@pytest.mark.slow
 def test_pid_reaches_the_1e_4_g_level_in_condition_3(pid_runs):
     metrics = pid_runs[3]
     assert metrics.termination_reason is None
@@ -101,6 +102,7 @@ def test_pid_reaches_the_1e_4_g_level_in_condition_3(pid_runs):
 
 
 @pytest.mark.parametrize("number", [1, 2])
+@pytest.mark.slow
 def test_pid_conditions_1_and_2_within_2_percent(pid_runs, number):
     metrics = pid_runs[number]
     assert metrics.termination_reason is None
@@ -108,11 +110,13 @@ def test_pid_conditions_1_and_2_within_2_percent(pid_runs, number):
 
 
 @pytest.mark.parametrize("number", [1, 2, 3])
+@pytest.mark.slow
 def test_pid_peak_deformation_within_3_percent_of_ideal_microgravity(pid_runs, number):
     metrics = pid_runs[number]
     assert metrics.max_deformation_m == pytest.approx(metrics.reference_max_deformation_m, rel=0.03)
 
 
+@pytest.mark.slow
 def test_pid_dom_meets_the_same_targets():
     env = MicroGravityLandingEnv(condition=3)
     metrics = run_with_metrics(env, make_controller("pid-dom", env.control_period_s), seed=1)[2]
@@ -158,6 +162,7 @@ def test_feedforward_follows_a_setpoint_and_resets():
     assert controller(observation, info) != first  # and its estimator restarts from this observation
 
 
+@pytest.mark.slow
 def test_the_oracle_is_the_feedforward_on_the_nominal_plant_and_far_better_on_a_drawn_one():
     """Told the nominal plant, the oracle acts as the feed-forward bit for bit; on drawn plants and
     drives (seeds 1000-1001 of condition 1) it uses what it is told and
@@ -185,6 +190,7 @@ def test_the_oracle_refuses_to_act_on_a_plant_it_was_not_told():
         oracle(observation)
 
 
+@pytest.mark.slow
 def test_the_adaptive_feedforward_learns_a_cogging_it_was_not_told():
     """A motor whose cogging is 0.3 N m at phase 2 rad (the nominal model: 0.24 N m at 0): the
     adaptive feed-forward ends condition 1 with an estimate within 10 % and 0.15 rad (measured:

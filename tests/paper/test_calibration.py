@@ -27,12 +27,14 @@ def fit():
     return calibrate()
 
 
+@pytest.mark.slow
 def test_fit_is_within_the_papers_worst_errors(fit):
     assert max(abs(v) for v in fit.max_deformation_pct) <= WORST_DEFORMATION_ERROR_PCT
     assert max(abs(v) for v in fit.collision_accel_pct) <= WORST_COLLISION_ERROR_PCT
     assert 4666.0 < fit.stiffness_n_per_m < 20000.0  # the experiments need a stiffer pad than Table 1's
 
 
+@pytest.mark.slow
 def test_fit_is_a_least_squares_minimum(fit):
     models = [LandingModel(CONDITIONS[n]) for n in (1, 2, 3)]
     deformation, acceleration = paper_targets("experiment")
@@ -50,6 +52,7 @@ def test_fit_is_a_least_squares_minimum(fit):
 
 
 @pytest.mark.parametrize(("name", "source"), [("calibrated", "experiment"), ("paper-simulation", "simulation")])
+@pytest.mark.slow
 def test_stored_pads_are_what_the_calibration_gives(name, source, fit):
     """config/pads.toml holds the fits with their provenance; they must follow the model."""
     fresh = fit if source == "experiment" else calibrate(source=source)
@@ -80,6 +83,7 @@ def test_pads_by_name():
         pad_params("foam")
 
 
+@pytest.mark.slow
 def test_calibrate_json(capsys, fit):
     assert main(["calibrate", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)

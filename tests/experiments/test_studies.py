@@ -12,7 +12,7 @@ from microg_env.experiments.campaign import Campaign
 from microg_env.rollout.runner import run
 from microg_env.rollout.spec import RunSpec
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 STUDIES = sorted(p.name for p in (REPO / "docs" / "studies").iterdir())
 #: Rows re-run per study: spread over the table, each a stored success; a re-tuned PID's rows are
 #: left out (each re-tunes over a grid of gains, minutes of runs) but the feed-forward on the same
@@ -34,6 +34,7 @@ def _numbers(value, prefix=""):
         yield prefix, value
 
 
+@pytest.mark.slow
 def test_every_study_page_is_of_its_shipped_campaign_file():
     assert STUDIES == ["fifty-gram-floor", "landing-monte-carlo", "period-bandwidth", "sensitivity"]
     for study in STUDIES:
@@ -46,6 +47,7 @@ def test_every_study_page_is_of_its_shipped_campaign_file():
 
 
 @pytest.mark.parametrize("study", STUDIES)
+@pytest.mark.slow
 def test_stored_study_rows_rerun_to_their_stored_values(study):
     """15 of the fifty-gram study's 40 zero-bias rows had drifted from the code (up to 1 pp)."""
     rows = _stored_rows(study)
@@ -61,6 +63,7 @@ def test_stored_study_rows_rerun_to_their_stored_values(study):
 
 
 @pytest.mark.parametrize("study", STUDIES)
+@pytest.mark.slow
 def test_each_study_page_is_rendered_from_its_stored_table(study, tmp_path):
     """Every number on a committed page comes from its committed table: rendering it again gives the
     same page (but the line naming the output folder)."""

@@ -94,6 +94,7 @@ def test_stepping_before_reset_asks_for_a_reset():
         MicroGravityLandingEnv().step(np.zeros(1, dtype=np.float32))
 
 
+@pytest.mark.slow
 def test_runs_under_subproc_vec_env():
     vec_env = pytest.importorskip("stable_baselines3.common.vec_env")
     envs = vec_env.SubprocVecEnv([lambda c=c: gym.make(ENV_ID, condition=c) for c in (1, 3)])
@@ -134,6 +135,7 @@ def test_episode_is_truncated_at_the_scenario_duration_at_any_period():
         assert infos[-1]["time_s"] == pytest.approx(0.05)
 
 
+@pytest.mark.slow
 def test_starts_balanced_and_places_loads_on_schedule():
     env = MicroGravityLandingEnv(condition=3, imperfections=Imperfections.none())
     from microg_env.controllers import make_controller
@@ -231,6 +233,7 @@ def test_reward_keeps_a_gradient_from_millimetres_to_nanometres_and_never_pays_f
 
 
 @pytest.mark.parametrize("name", ["feedforward", "adaptive", "oracle"])
+@pytest.mark.slow
 def test_a_zero_residual_is_its_base_controller_exactly(name):
     """action_mode="residual": an action of 0 leaves the base controller alone (the oracle base is
     told each drawn plant by the environment, as the harness tells the oracle)."""
@@ -483,6 +486,7 @@ def test_the_full_randomisation_draws_the_drive_after_the_plant_and_writes_it_in
     assert max(map(abs, phases)) <= np.pi
 
 
+@pytest.mark.slow
 def test_the_papers_sensor_set_hides_the_pad_force_and_accelerometer_and_nothing_else():
     """On the paper's sensors the pad force and accelerometer entries read 0 while the pad pushes;
     a controller that reads neither (the PID) runs the same episode bit for bit on either set, one
@@ -585,6 +589,7 @@ def test_scenario_overrides_are_explicit_and_apply_on_top_of_params():
     assert env.params.lander.mass_kg == 620.0
 
 
+@pytest.mark.slow
 def test_rgb_array_render():
     env = gym.make(ENV_ID, render_mode="rgb_array", width=160, height=120)
     env.reset(seed=0)
@@ -599,6 +604,7 @@ def test_rgb_array_render():
     assert frame.std() > 0
 
 
+@pytest.mark.slow
 def test_human_render_without_a_display_is_a_clear_error_not_an_abort():
     code = "import microg_env; microg_env.MicroGravityLandingEnv(render_mode='human')"
     environment = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MUJOCO_GL")}
@@ -607,6 +613,7 @@ def test_human_render_without_a_display_is_a_clear_error_not_an_abort():
     assert "render_mode='human' needs a display" in result.stderr
 
 
+@pytest.mark.slow
 def test_a_long_episode_made_by_id_runs_to_its_scenario_duration():
     """Registered with max_episode_steps=30000, gym.make cut 100 us episodes off at 3 s."""
     scenario = Scenario("long", (LoadStep(0.49),), descent_height_m=0.09, duration_s=3.2)

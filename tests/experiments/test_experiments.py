@@ -32,6 +32,7 @@ MICROG = [sys.executable, "-m", "microg_env.cli"]
 SHORT = {"scenario": "condition-2", "duration_s": 0.3}
 
 
+@pytest.mark.slow
 def test_spec_hash_is_content_only_and_stable_across_processes():
     spec = RunSpec(overrides={"servo.speed_loop_gain_hz": 150, "qzs.guide_friction_n": 0.15}, seed=7)
     same = RunSpec(seed=7, overrides={"qzs.guide_friction_n": 0.15, "servo.speed_loop_gain_hz": 150.0})
@@ -130,6 +131,7 @@ def test_accelerometer_bias_reads_straight_into_the_accelerometers_descent():
     assert a.accelerometer_descent_accel_m_s2[0] == pytest.approx(a.descent_accel_m_s2[0], abs=0.3e-3)
 
 
+@pytest.mark.slow
 def test_a_ruler_zero_offset_moves_the_lander_and_delays_the_next_weight():
     """The paper's 50 g stage: -0.38 mm/s^2 and a 3.9 s lag. An accelerometer bias changes only the
     reading (no delay); a ruler zero 7 um off the QZS's balance makes the PID hold x at +7 um, where
@@ -154,6 +156,7 @@ def test_a_ruler_zero_offset_moves_the_lander_and_delays_the_next_weight():
     assert offset.metrics.placement_delay_s[0] == pytest.approx(3.9, abs=0.2)
 
 
+@pytest.mark.slow
 def test_the_tuned_pid_loses_the_lander_on_the_drives_factory_default_speed_loop():
     """Why the sensitivity study's speed loop starts at 50 Hz: at the Sigma-7's factory default 40 Hz
     the PID tuned for the assumed 100 Hz drives x to the guide's stroke limit on the nominal rig."""
@@ -175,6 +178,7 @@ def test_weights_placed_together_each_get_their_delay():
     assert not any(name.startswith("placement_delay_s") for name in metrics.unavailable)
 
 
+@pytest.mark.slow
 def test_a_morris_design_moves_one_assumption_at_a_time_over_its_range(tmp_path):
     """samples: {method: morris}: trajectories x (keys + 1) points per grid point and seed, each
     step of a trajectory moving exactly one key by one grid step, a loguniform key on a log grid."""
@@ -281,6 +285,7 @@ def test_campaign_expands_grid_linked_keys_samples_and_seeds(tmp_path):
         ),
     ],
 )
+@pytest.mark.slow
 def test_a_bad_campaign_file_exits_2_naming_the_fault(tmp_path, text, named):
     path = tmp_path / "bad.yml"
     path.write_text(text)
@@ -296,6 +301,7 @@ def test_a_bad_campaign_file_exits_2_naming_the_fault(tmp_path, text, named):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_pid_retuned_picks_the_best_robust_candidate_on_the_specs_own_rig(monkeypatch):
     """The re-tune scores every candidate with its doubled gains on the spec's own rig and period (a
     1 kg weight from 20 mm, touchdown at 1.6 s) and picks the cheapest that survives doubling; the
@@ -537,6 +543,7 @@ def test_a_campaign_runs_on_a_ray_cluster_started_separately(tmp_path):
     assert pq.read_table(out / "results.parquet").num_rows == 8
 
 
+@pytest.mark.slow
 def test_campaign_address_that_does_not_answer_exits_2(tmp_path):
     path = tmp_path / "c.yml"
     path.write_text("name: t\nbase: {scenario: condition-2, duration_s: 0.1}\n")
@@ -551,6 +558,7 @@ def test_campaign_address_that_does_not_answer_exits_2(tmp_path):
     assert "--address" in done.stderr
 
 
+@pytest.mark.slow
 def test_campaign_refuses_zero_cpus_and_a_folder_of_another_campaign(tmp_path):
     path, out = tmp_path / "c.yml", tmp_path / "out"
     path.write_text("name: mine\nbase: {scenario: condition-2, duration_s: 0.1}\n")
@@ -567,6 +575,7 @@ def test_campaign_refuses_zero_cpus_and_a_folder_of_another_campaign(tmp_path):
     assert json.loads((out / "campaign.json").read_text()) == {"name": "theirs"}
 
 
+@pytest.mark.slow
 def test_run_each_on_two_processes_gives_the_runs_of_run_in_order():
     """The reproduction's runs in parallel: each result, trajectories included, is what run gives."""
     specs = [
@@ -656,6 +665,7 @@ def test_a_bracketed_ipv6_address_is_checked_like_any_other():
 
 
 @pytest.mark.parametrize("reply", [b"SSH-2.0-OpenSSH_9.6\r\n", b"HTTP/1.1 400 Bad Request\r\n\r\n", None])
+@pytest.mark.slow
 def test_campaign_address_of_a_service_that_is_not_ray_exits_2_in_seconds(tmp_path, reply):
     """Another service at --address (one that answers otherwise, or says nothing) used to hang the
     campaign in Ray's retries for minutes; nothing is written."""
@@ -742,6 +752,7 @@ def test_campaign_files_refuse_a_key_given_twice_and_read_exponents_as_numbers(t
     assert Campaign.load(path).sweep == {"overrides.sensors.ruler_noise_m": [5e-9]}  # YAML 1.1 read "5e-9"
 
 
+@pytest.mark.slow
 def test_a_campaign_on_its_own_local_ray_removes_that_instances_session_folder(tmp_path):
     """Each campaign used to leave its local Ray instance's session folder (logs) in the system's
     temporary directory. In a process of its own, as every campaign test here starts Ray."""
@@ -803,6 +814,7 @@ def test_a_stored_row_says_which_randomisation_drew_its_plant():
         assert row["randomize_drive"] is (preset in ("full", "wider"))
 
 
+@pytest.mark.slow
 def test_campaign_tutorial_reads_its_table_into_pandas_and_plots_it(tmp_path, run_tutorial):
     """docs/tutorials/03_campaign_dataframe.py (here: it starts Ray; see test_tutorials.py)."""
     out = run_tutorial("03_campaign_dataframe.py", tmp_path, "--duration", "6")
