@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from microg_env.analysis.formatting import format_number
 from microg_env.analysis.paired import Paired
 from microg_env.analysis.plots import figure_class, save_figure
 from microg_env.experiments.comparison import QUANTITIES, X_WINDOW_S, Comparison
@@ -19,10 +20,6 @@ from microg_env.files import check_output_folder, replace_folder
 COMPARISON_FILES = ("comparison.md", "comparison.json", "x_landing.png", "metrics.png")
 #: The controller the others are measured against, where it is compared.
 BASELINE = "pid"
-
-
-def _cell(value: float, scale: float, spec: str) -> str:
-    return "-" if not math.isfinite(value) else format(value * scale, spec)
 
 
 def _spec(value: float) -> str:
@@ -39,8 +36,8 @@ def _summary_cell(c: Comparison, controller: str, name: str, scenario: str | Non
         return "-"
     spec = _spec(s.mean * quantity.scale)
     return (
-        f"{_cell(s.mean, quantity.scale, spec)} ± {_cell(s.std, quantity.scale, spec)} "
-        f"({_cell(s.worst, quantity.scale, spec)})"
+        f"{format_number(s.mean, spec, quantity.scale)} ± {format_number(s.std, spec, quantity.scale)} "
+        f"({format_number(s.worst, spec, quantity.scale)})"
     )
 
 
@@ -104,7 +101,7 @@ def render_markdown(c: Comparison) -> str:
             for name in QUANTITIES:
                 mine, theirs = c.summary(controller, name).mean, c.summary(BASELINE, name).mean
                 ratio = mine / theirs if theirs else math.nan
-                ratios.append("-" if not math.isfinite(ratio) else f"{ratio:.3g}")
+                ratios.append(format_number(ratio, ".3g"))
             lines.append(f"| {controller} | " + " | ".join(ratios) + " |")
     if c.reference is not None and len(c.controllers) > 1:
         lines += [

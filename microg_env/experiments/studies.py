@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from microg_env.analysis.formatting import MISSING, format_number
 from microg_env.analysis.plots import figure_class, save_figure
 from microg_env.experiments.tuning import RETUNE_KI
 from microg_env.files import write_text
@@ -38,10 +39,6 @@ def _stats(values: Iterable[float | None]) -> tuple[float, float, int]:
     if not finite:
         return math.nan, math.nan, 0
     return float(np.mean(finite)), float(np.max(finite)), len(finite)
-
-
-def _fmt(value: float, spec: str) -> str:
-    return "–" if value is None or not math.isfinite(value) else format(value, spec)
 
 
 def _header(campaign, table, command: str) -> list[str]:
@@ -105,11 +102,12 @@ def period_bandwidth(campaign, table, folder: Path) -> list[str]:
                 hit = _stats(cell(controller, period, bandwidth, "flexible_unit_excursion_collision_m"))
                 kp = cell(controller, period, bandwidth, "tuned_kp_per_s")
                 ki = cell(controller, period, bandwidth, "tuned_ki_per_s2")
-                gains = f"{kp[0]:g}, {ki[0]:g}" if kp and kp[0] is not None else "–"
+                gains = f"{kp[0]:g}, {ki[0]:g}" if kp and kp[0] is not None else MISSING
                 lines.append(
-                    f"| {controller} | {period:g} | {bandwidth:g} | {_fmt(err[0], '.3f')} | {_fmt(grav[0], '.1e')} "
-                    f"| {_fmt(free[0] * 1e6, '.2f')} / {_fmt(free[1] * 1e6, '.2f')} "
-                    f"| {_fmt(hit[0] * 1e6, '.2f')} / {_fmt(hit[1] * 1e6, '.2f')} "
+                    f"| {controller} | {period:g} | {bandwidth:g} | {format_number(err[0], '.3f')} "
+                    f"| {format_number(grav[0], '.1e')} "
+                    f"| {format_number(free[0] * 1e6, '.2f')} / {format_number(free[1] * 1e6, '.2f')} "
+                    f"| {format_number(hit[0] * 1e6, '.2f')} / {format_number(hit[1] * 1e6, '.2f')} "
                     f"| {failures(controller, period, bandwidth)} | {gains} |"
                 )
     lines.append("")
@@ -214,7 +212,7 @@ def fifty_gram_floor(campaign, table, folder: Path) -> list[str]:
     lines = _header(campaign, table, _command(campaign, folder))
     lines += [
         f"The paper's 50 g stage fell at {PAPER_FIFTY_GRAM_MM_S2} mm/s² against the ideal "
-        f"{_fmt(ideal * 1e3, '.3f')} mm/s² ({_fmt(paper_pct, '+.1f')} %), and its curves lagged the "
+        f"{format_number(ideal * 1e3, '.3f')} mm/s² ({format_number(paper_pct, '+.1f')} %), and its curves lagged the "
         f"theory's by {FIFTY_GRAM_LAG_S:g} s (Section 4.2): the time a fall from 55 to 25 mm takes "
         "longer at 0.38 than at 0.79 mm/s², so the lander itself fell slowly; a sensor that only "
         "misreads cannot delay the position curve.",
@@ -243,9 +241,10 @@ def fifty_gram_floor(campaign, table, folder: Path) -> list[str]:
             (survivors if lag_ok else matched).append((name, runs[0]))
         second = _stats(_stage(r, "descent_accel_m_s2", 1) for r in runs)[0]
         lines.append(
-            f"| {name} | {_fmt(true * 1e3, '.3f')} | {_fmt(read * 1e3, '.3f')} | {_fmt(lag, '+.2f')} | "
+            f"| {name} | {format_number(true * 1e3, '.3f')} | {format_number(read * 1e3, '.3f')} "
+            f"| {format_number(lag, '+.2f')} | "
             f"{'yes' if descent_ok else 'no'} | {'yes' if lag_ok else 'no'} | "
-            f"{'**yes**' if descent_ok and lag_ok else 'no'} | {_fmt(second * 1e3, '.2f')} |"
+            f"{'**yes**' if descent_ok and lag_ok else 'no'} | {format_number(second * 1e3, '.2f')} |"
         )
     lines += [
         "",
@@ -287,11 +286,11 @@ def _fifty_gram_grids(rows, keys, ideal, select) -> list[str]:
             chosen = select(**on_zero, **{"qzs.guide_friction_n": friction, "sensors.ruler_resolution_m": ruler})
             values = [_stage(r, "compensation_error_pct") for r in chosen]
             worst_true = max([worst_true, *(abs(v) for v in values if math.isfinite(v))])
-            cells.append(_fmt(_stats(values)[0], "+.2f"))
+            cells.append(format_number(_stats(values)[0], "+.2f"))
         lines.append(f"| {friction:g} | " + " | ".join(cells) + " |")
     lines += [
         "",
-        f"Largest |true error| of any of these runs: {_fmt(worst_true, '.2f')} %.",
+        f"Largest |true error| of any of these runs: {format_number(worst_true, '.2f')} %.",
         "",
         "## As the accelerometer reports it (mean reading over the stage), mean over seeds, frictions and rulers",
         "",
@@ -305,7 +304,9 @@ def _fifty_gram_grids(rows, keys, ideal, select) -> list[str]:
         )[0]
         error = 100.0 * (sensed / ideal - 1.0)
         micro_g = bias / STANDARD_GRAVITY_M_S2 * 1e6
-        lines.append(f"| {bias:g} | {micro_g:.0f} | {_fmt(sensed * 1e3, '.3f')} | {_fmt(error, '+.1f')} |")
+        lines.append(
+            f"| {bias:g} | {micro_g:.0f} | {format_number(sensed * 1e3, '.3f')} | {format_number(error, '+.1f')} |"
+        )
     return lines
 
 
@@ -415,7 +416,7 @@ def landing_monte_carlo(campaign, table, folder: Path) -> list[str]:
         for key, scale, _, spec in _MC_QUANTITIES:
             values = np.array([r[key] * scale for r in mine if r[key] is not None and math.isfinite(r[key])])
             if not values.size:
-                cells.append("–")
+                cells.append(MISSING)
                 continue
             p5, p95 = np.percentile(values, [5, 95])
             cells.append(f"{values.mean():{spec}} ({p5:{spec}}–{p95:{spec}}; {values.max():{spec}})")
@@ -438,7 +439,7 @@ def landing_monte_carlo(campaign, table, folder: Path) -> list[str]:
                 and r["scenario"] == scenario
                 and r["flexible_unit_excursion_collision_m"] is not None
             ]
-            cells.append(f"{np.mean(values):.2f} ({max(values):.2f})" if values else "–")
+            cells.append(f"{np.mean(values):.2f} ({max(values):.2f})" if values else MISSING)
         lines.append(f"| {controller} | " + " | ".join(cells) + " |")
     figure = figure_class()(figsize=(11, 4))
     axes = figure.subplots(1, 3)

@@ -2,8 +2,8 @@
 
 :func:`write` renders the runs of :func:`microg_env.paper.reproduction.compute` as a Markdown report
 with PNG figures and a JSON file of every number, into a folder, atomically. Every number in the
-report is computed here from those runs, :mod:`microg_env.paper.tables` (the paper) and
-:mod:`microg_env.paper.previous` (what microg 0.1.0 reported).
+report is computed here from those runs and :mod:`microg_env.paper.tables` (the paper). What
+changed since earlier versions is CHANGELOG.md's.
 """
 
 from __future__ import annotations
@@ -11,15 +11,16 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
 
+from microg_env.analysis.formatting import MISSING, format_number
 from microg_env.analysis.metrics import COMPARED_WINDOW, contacts
 from microg_env.analysis.plots import envelope, figure_class, save_figure
 from microg_env.controllers import load_gains
 from microg_env.files import check_output_folder, replace_folder
-from microg_env.paper.previous import PID_GAINS_0_1, RELEASE_0_1, SCREW_TORQUE_0_1_N_M
 from microg_env.paper.reproduction import (
     DRIFT_SEEDS,
     NUMBERS,
@@ -59,12 +60,9 @@ FIGURES = {
 # -- numbers --------------------------------------------------------------------------------------
 
 
-def _fmt(value: float, spec: str) -> str:
-    return "–" if value is None or not math.isfinite(value) else format(value, spec)
-
-
 def _pct(value: float) -> str:
-    return _fmt(value, "+.2f") + (" %" if value is not None and math.isfinite(value) else "")
+    text = format_number(value, "+.2f")
+    return text if text == MISSING else f"{text} %"
 
 
 def residuals(rep: Reproduction, pad: str) -> tuple[list[float], list[float]]:
@@ -143,13 +141,14 @@ def _headline(rep: Reproduction) -> str:
         rows.append(
             [
                 str(number),
-                ", ".join(_fmt(v * 1e3, ".3f") for v in table1.descent_accel_m_s2),
-                ", ".join(_fmt(v, ".2f") for v in paper.measured_descent_accel_mm_s2),
+                ", ".join(format_number(v * 1e3, ".3f") for v in table1.descent_accel_m_s2),
+                ", ".join(format_number(v, ".2f") for v in paper.measured_descent_accel_mm_s2),
                 f"{paper.simulated_max_deformation_mm:.2f} / {paper.measured_max_deformation_mm:.2f}",
-                f"{_fmt(table1.max_deformation_m * 1e3, '.2f')} / {_fmt(calibrated.max_deformation_m * 1e3, '.2f')}",
+                f"{format_number(table1.max_deformation_m, '.2f', 1e3)} / "
+                f"{format_number(calibrated.max_deformation_m, '.2f', 1e3)}",
                 f"{paper.simulated_collision_accel_mm_s2:.2f} / {paper.measured_collision_accel_mm_s2:.2f}",
-                f"{_fmt(table1.collision_accel_m_s2 * 1e3, '.2f')} / "
-                f"{_fmt(calibrated.collision_accel_m_s2 * 1e3, '.2f')}",
+                f"{format_number(table1.collision_accel_m_s2 * 1e3, '.2f')} / "
+                f"{format_number(calibrated.collision_accel_m_s2 * 1e3, '.2f')}",
             ]
         )
     header = [
@@ -201,9 +200,9 @@ def _table3(rep: Reproduction) -> str:
                         str(number),
                         label + stage,
                         f"{value:g}",
-                        _fmt(a, ".3f"),
+                        format_number(a, ".3f"),
                         _pct(100 * (a - value) / abs(value)),
-                        _fmt(b, ".3f"),
+                        format_number(b, ".3f"),
                         _pct(100 * (b - value) / abs(value)),
                     ]
                 )
@@ -235,9 +234,9 @@ def _table4(rep: Reproduction) -> str:
                     f"{measured:g}",
                     _pct(100 * (measured / (ideal * 1e3) - 1)),
                     f"{paper.printed_descent_error_pct[i]:.2f} %",
-                    _fmt(table1.descent_accel_m_s2[i] * 1e3, ".3f"),
+                    format_number(table1.descent_accel_m_s2[i] * 1e3, ".3f"),
                     _pct(table1.compensation_error_pct[i]),
-                    _fmt(calibrated.descent_accel_m_s2[i] * 1e3, ".3f"),
+                    format_number(calibrated.descent_accel_m_s2[i] * 1e3, ".3f"),
                     _pct(calibrated.compensation_error_pct[i]),
                 ]
             )
@@ -286,9 +285,9 @@ def _landing_table(rep: Reproduction, quantity: str) -> str:
                 f"{exp:.2f}",
                 f"{printed:.2f} %",
                 _pct(theirs[i]),
-                _fmt(values["paper"], ".2f"),
+                format_number(values["paper"], ".2f"),
                 _pct(ours["paper"][i]),
-                _fmt(values["calibrated"], ".2f"),
+                format_number(values["calibrated"], ".2f"),
                 _pct(ours["calibrated"][i]),
                 "yes" if better else "no",
             ]
@@ -322,15 +321,15 @@ def _closed_form_table(rep: Reproduction) -> str:
                 [
                     PAD_LABELS[pad],
                     str(number),
-                    _fmt(speed * 1e3, ".2f"),
+                    format_number(speed * 1e3, ".2f"),
                     f"{contact.half_period_s:.4f}",
                     f"{contact.contact_time_s:.4f}",
-                    _fmt(metrics.contact_time_s, ".4f"),
+                    format_number(metrics.contact_time_s, ".4f"),
                     f"{contact.restitution_half_period:.4f}",
                     f"{contact.restitution:.4f}",
-                    _fmt(metrics.restitution, ".4f"),
-                    _fmt(contact.max_deformation_m(speed) * 1e3 if math.isfinite(speed) else math.nan, ".3f"),
-                    _fmt(metrics.max_deformation_m * 1e3, ".3f"),
+                    format_number(metrics.restitution, ".4f"),
+                    format_number(contact.max_deformation_m(speed) * 1e3 if math.isfinite(speed) else math.nan, ".3f"),
+                    format_number(metrics.max_deformation_m * 1e3, ".3f"),
                 ]
             )
     header = [
@@ -481,16 +480,20 @@ def _balancer_table(rep: Reproduction) -> str:
     params = RigParams()
     torques = [rep.runs["paper", n].metrics.servo_rms_torque_n_m for n in NUMBERS]
     rated = params.servo.rated_torque_n_m
+    # Beside: the static torque with the balancer in parallel with the QZS, the screw carrying
+    # lander and support, (M + m_s) g / gear.
+    parallel = replace(params, balancer=replace(params.balancer, placement="support_lander"))
+    parallel_torque = flexible_unit(parallel).screw_load_n / params.screw.gear_rad_per_m
     rows = [
         [
             "servo RMS torque, conditions 1-3 (N m)",
             ", ".join(f"{t:.2f}" for t in torques),
-            f"{SCREW_TORQUE_0_1_N_M:g} (0.1.0: balancer in parallel with the QZS)",
+            f"{parallel_torque:.1f} (balancer in parallel with the QZS)",
         ],
         [
             "share of the 48 N m rated torque",
             f"{100 * max(torques) / rated:.1f} %",
-            f"{100 * SCREW_TORQUE_0_1_N_M / rated:.0f} %",
+            f"{100 * parallel_torque / rated:.0f} %",
         ],
     ]
     for placement, errors in rep.drift.items():
@@ -502,65 +505,6 @@ def _balancer_table(rep: Reproduction) -> str:
             ]
         )
     return _table(["quantity", "this model", "beside"], rows)
-
-
-def _changes(rep: Reproduction) -> str:
-    """Each headline number of microg 0.1.0 beside this version's, with the reason it moved."""
-    rows = []
-    for number in NUMBERS:
-        old, new = RELEASE_0_1[number], rep.runs["paper", number].metrics
-        rows.append(
-            [
-                str(number),
-                ", ".join(f"{v:+.3f}" for v in old["compensation_error_pct"]),
-                ", ".join(_fmt(v, "+.3f") for v in new.compensation_error_pct),
-                f"{old['free_fall_excursion_um']:.2f}",
-                _fmt(new.flexible_unit_excursion_free_fall_m * 1e6, ".2f"),
-                f"{old['collision_excursion_um']:.2f}",
-                _fmt(new.flexible_unit_excursion_collision_m * 1e6, ".2f"),
-                f"{old['max_deformation_mm'][0]:.3f} / {old['max_deformation_mm'][1]:.3f}",
-                f"{_fmt(new.max_deformation_m * 1e3, '.3f')} / {_fmt(new.reference_max_deformation_m * 1e3, '.3f')}",
-            ]
-        )
-    header = [
-        "condition",
-        "compensation error, 0.1.0 (%)",
-        "now (%)",
-        "max |x| free fall, 0.1.0 (µm)",
-        "now (µm)",
-        "max |x| collision, 0.1.0 (µm)",
-        "now (µm)",
-        "peak deformation rig / ideal, 0.1.0 (mm)",
-        "now (mm)",
-    ]
-    gains = load_gains(rep.controller)
-    return f"""{_table(header, rows)}
-
-Why they moved (the fidelity review of 0.1.0):
-
-- **The drive's position reference is interpolated.** 0.1.0 held it at the control period's mean
-  while the speed reference was not: the torque alternated at every physics step (±0.14 N m),
-  shaking x by nanometres and averaging the QZS guide's friction to zero. The drive now ramps
-  its reference at the commanded speed through the period, as a real drive interpolates it.
-- **The physics step is its own parameter**, {PHYSICS_STEP_US:g} µs for every control period, chosen by a
-  convergence study (`benchmarks/convergence.py`, docs/model.md "Physics step"); 0.1.0 used 0.5 ms at 1 ms
-  and 500 µs, which moved sub-micrometre excursions by up to 16 %.
-- **Eq. (17) is read literally**: a negative residual stiffness, so the PID's integral lag makes the
-  lander fall slightly *fast*, the sign of the paper's simulation (section above); 0.1.0's restoring
-  reading could only make it fall slow.
-- **The balancer sits between frame and support** (Section 4.1: it unloads the screw): the screw's
-  continuous torque fell from {SCREW_TORQUE_0_1_N_M:g} N m (107 % of rated) to the figures in the balancer table.
-- **The drive filters its torque reference** (1 ms, the Σ-7's default), which costs phase margin: with
-  it the 0.1.0 gains (Kp {PID_GAINS_0_1[0]:g} s⁻¹, Ki {PID_GAINS_0_1[1]:g} s⁻²) no longer survive doubling, and
-  the re-tuned PID is Kp {gains.kp_per_s:g} s⁻¹, Ki {gains.ki_per_s2:g} s⁻². A lower Ki means a larger steady lag, hence
-  the larger compensation errors and excursions.
-- **The QZS guide's friction is 0.2 N of LuGre friction** (pre-sliding, then Coulomb; 0.1.0: 0.02 N of
-  MuJoCo's soft-constraint friction, whose effect on the 50 g stage turned out to shrink with the
-  physics step: an artifact). It now acts, and it changes the 50 g stage.
-- **The pad is a half-space on a rigid floor**: 0.1.0's box pad flipped its contact normal past 75 mm
-  and pulled the lander through; pads too stiff for the physics step are rejected instead of
-  gaining energy.
-"""
 
 
 def render_markdown(rep: Reproduction) -> str:
@@ -650,9 +594,6 @@ drive's cogging ripple fills a solid band in which one pad's trace hides the oth
 
 {figures}
 
-## What changed since microg 0.1.0
-
-{_changes(rep)}
 ## Differences from the paper, explained
 
 {_differences(rep)}"""
