@@ -112,8 +112,8 @@ def _run_spec(args: argparse.Namespace):
     from microg_env.params import RigParams
     from microg_env.rollout.spec import RunSpec
 
-    if args.randomize and args.ideal:
-        raise ValueError("--randomize: an --ideal rig has nothing to randomise; give one of them")
+    if args.randomize and args.no_imperfections:
+        raise ValueError("--randomize: a rig with --no-imperfections has nothing to randomise; give one of them")
     pad, paper = pad_from_options(args), RigParams().pad
     overrides = {
         f"pad.{name}": getattr(pad, name)
@@ -125,7 +125,7 @@ def _run_spec(args: argparse.Namespace):
         controller=args.controller,
         seed=args.seed,
         overrides=overrides,
-        imperfections=dict.fromkeys(IMPERFECTION_NAMES, False) if args.ideal else {},
+        imperfections=dict.fromkeys(IMPERFECTION_NAMES, False) if args.no_imperfections else {},
         randomize=args.randomize,
         control_period_us=args.control_period,
         physics_step_us=args.physics_step,
@@ -146,7 +146,7 @@ def _print_run(scenario, pad, args: argparse.Namespace, m) -> None:
         f"{args.pad} pad (K = {pad.stiffness_n_per_m:.1f} N/m, D = {pad.damping_n_s_per_m:.1f} N s/m); "
         f"controller {args.controller}; seed {args.seed}; {scenario.duration_s:g} s at "
         f"{args.control_period:g} us (physics step {args.physics_step:g} us); "
-        f"imperfections {'off' if args.ideal else 'on'}"
+        f"imperfections {'off' if args.no_imperfections else 'on'}"
     )
     if m.termination_reason:
         print(f"  episode ended early: {m.termination_reason}")
@@ -266,7 +266,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from microg_env.paper.calibration import calibrate
     from microg_env.paper.report import paper_residuals
-    from microg_env.paper.tables import CONDITIONS as PAPER
+    from microg_env.paper.tables import PUBLISHED
 
     result = calibrate(source=args.source)
     if args.json:
@@ -287,7 +287,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         rows.append(("collision acceleration, the paper's simulation", paper_acceleration))
         measured = ", ".join(
             f"{c.measured_max_deformation_mm:g} mm / {c.measured_collision_accel_mm_s2:g} mm/s^2"
-            for c in PAPER.values()
+            for c in PUBLISHED.values()
         )
         print(f"experiments (deformation / acceleration): {measured}")
     for label, values in rows:
@@ -353,7 +353,13 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
         help="control period (paper: 1000/500/200/100)",
     )
     add_physics_step_option(parser)
-    parser.add_argument("--ideal", action="store_true", help="switch every imperfection off (an ideal drive and rig)")
+    parser.add_argument(
+        "--no-imperfections",
+        "--ideal",  # its name before 0.4.0
+        dest="no_imperfections",
+        action="store_true",
+        help="switch every imperfection off (an ideal drive, exact sensors, no friction, cogging or drift)",
+    )
     parser.add_argument(
         "--randomize", action="store_true", help="a randomised plant (lander, pad, friction, weights) drawn from --seed"
     )

@@ -16,13 +16,13 @@ from microg_env.analysis.formatting import MISSING, format_number
 from microg_env.analysis.plots import figure_class, save_figure
 from microg_env.experiments.tuning import RETUNE_KI
 from microg_env.files import write_text
-from microg_env.paper.tables import CONDITIONS, FIFTY_GRAM_LAG_S
+from microg_env.paper.tables import FIFTY_GRAM_LAG_S, PUBLISHED
 from microg_env.params import RigParams, parameter_paths
 from microg_env.rollout.runner import run
 from microg_env.rollout.spec import RunSpec
 
 #: The paper's 50 g stage (Table 4): measured -0.38 mm/s^2 against the ideal -0.79 (Table 2).
-PAPER_FIFTY_GRAM_MM_S2, PAPER_STAGE_2_MM_S2 = CONDITIONS[3].measured_descent_accel_mm_s2
+PAPER_FIFTY_GRAM_MM_S2, PAPER_STAGE_2_MM_S2 = PUBLISHED[3].measured_descent_accel_mm_s2
 #: Standard gravity, the g of an accelerometer's bias in ug, m/s^2.
 STANDARD_GRAVITY_M_S2 = 9.80665
 #: The page of a campaign folder.

@@ -23,8 +23,7 @@ import mujoco
 import numpy as np
 from mujoco import minimize
 
-from microg_env.paper.tables import CONDITIONS as PAPER
-from microg_env.paper.tables import experiment_relative_error_pct
+from microg_env.paper.tables import PUBLISHED, experiment_relative_error_pct
 from microg_env.params import PadParams, RigParams
 from microg_env.scenarios import CONDITIONS, Scenario
 from microg_env.sim.contact import damping_ratio
@@ -112,9 +111,9 @@ def paper_targets(source: str) -> tuple[np.ndarray, np.ndarray]:
     """Peak deformation (mm) and collision acceleration (mm/s^2) of conditions 1-3 in the paper:
     its experiment (Tables 5 and 6 "actual") or its simulation (Tables 5 and 6 "theoretical")."""
     if source == "experiment":
-        pairs = [(c.measured_max_deformation_mm, c.measured_collision_accel_mm_s2) for c in PAPER.values()]
+        pairs = [(c.measured_max_deformation_mm, c.measured_collision_accel_mm_s2) for c in PUBLISHED.values()]
     elif source == "simulation":
-        pairs = [(c.simulated_max_deformation_mm, c.simulated_collision_accel_mm_s2) for c in PAPER.values()]
+        pairs = [(c.simulated_max_deformation_mm, c.simulated_collision_accel_mm_s2) for c in PUBLISHED.values()]
     else:
         raise ValueError(f"source must be 'experiment' or 'simulation', got {source!r}")
     deformation, acceleration = zip(*pairs, strict=True)

@@ -29,8 +29,8 @@ from microg_env.paper.reproduction import (
     READINGS,
     Reproduction,
 )
-from microg_env.paper.tables import CONDITIONS as PAPER
 from microg_env.paper.tables import (
+    PUBLISHED,
     SIMULATED_FREE_FALL_ERROR_PCT,
     WORST_COLLISION_ERROR_PCT,
     WORST_DEFORMATION_ERROR_PCT,
@@ -69,7 +69,7 @@ def residuals(rep: Reproduction, pad: str) -> tuple[list[float], list[float]]:
     """The full rig's peak deformation and collision acceleration with ``pad``, % of the experiment."""
     deformation, acceleration = [], []
     for number in NUMBERS:
-        metrics, paper = rep.runs[pad, number].metrics, PAPER[number]
+        metrics, paper = rep.runs[pad, number].metrics, PUBLISHED[number]
         deformation.append(
             experiment_relative_error_pct(metrics.max_deformation_m * 1e3, paper.measured_max_deformation_mm)
         )
@@ -83,11 +83,11 @@ def paper_residuals() -> tuple[list[float], list[float]]:
     """The paper's own simulation against its experiment, % of the experiment."""
     deformation = [
         experiment_relative_error_pct(c.simulated_max_deformation_mm, c.measured_max_deformation_mm)
-        for c in PAPER.values()
+        for c in PUBLISHED.values()
     ]
     acceleration = [
         experiment_relative_error_pct(c.simulated_collision_accel_mm_s2, c.measured_collision_accel_mm_s2)
-        for c in PAPER.values()
+        for c in PUBLISHED.values()
     ]
     return deformation, acceleration
 
@@ -136,7 +136,7 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
 def _headline(rep: Reproduction) -> str:
     rows = []
     for number in NUMBERS:
-        paper = PAPER[number]
+        paper = PUBLISHED[number]
         table1, calibrated = rep.runs["paper", number].metrics, rep.runs["calibrated", number].metrics
         rows.append(
             [
@@ -166,7 +166,7 @@ def _headline(rep: Reproduction) -> str:
 def _table3(rep: Reproduction) -> str:
     rows = []
     for number in NUMBERS:
-        paper = PAPER[number]
+        paper = PUBLISHED[number]
         table1, calibrated = rep.runs["paper", number].metrics, rep.runs["calibrated", number].metrics
         quantities = [
             (
@@ -221,7 +221,7 @@ def _table3(rep: Reproduction) -> str:
 def _table4(rep: Reproduction) -> str:
     rows = []
     for number in NUMBERS:
-        paper = PAPER[number]
+        paper = PUBLISHED[number]
         table1, calibrated = rep.runs["paper", number].metrics, rep.runs["calibrated", number].metrics
         for i, ideal in enumerate(table1.ideal_descent_accel_m_s2):
             measured = paper.measured_descent_accel_mm_s2[i]
@@ -262,7 +262,7 @@ def _landing_table(rep: Reproduction, quantity: str) -> str:
     theirs = paper_residuals()[0 if deformation else 1]
     rows = []
     for i, number in enumerate(NUMBERS):
-        paper = PAPER[number]
+        paper = PUBLISHED[number]
         if deformation:
             sim, exp, printed = (
                 paper.simulated_max_deformation_mm,
@@ -356,8 +356,8 @@ def _power_law_exponents() -> tuple[float, float, float]:
     gravity = RigParams().gravity_m_s2
     mass = RigParams().lander.mass_kg
     speed_ratio = CONDITIONS[3].impact_speed_m_s(mass, gravity) / CONDITIONS[1].impact_speed_m_s(mass, gravity)
-    deformation_ratio = PAPER[3].measured_max_deformation_mm / PAPER[1].measured_max_deformation_mm
-    acceleration_ratio = PAPER[3].measured_collision_accel_mm_s2 / PAPER[1].measured_collision_accel_mm_s2
+    deformation_ratio = PUBLISHED[3].measured_max_deformation_mm / PUBLISHED[1].measured_max_deformation_mm
+    acceleration_ratio = PUBLISHED[3].measured_collision_accel_mm_s2 / PUBLISHED[1].measured_collision_accel_mm_s2
     p = math.log(deformation_ratio) / math.log(speed_ratio)  # = 2 / (n + 1)
     q = math.log(acceleration_ratio) / math.log(speed_ratio)  # = 2 n / (n + 1)
     return speed_ratio, 2.0 / p - 1.0, q / (2.0 - q)
@@ -388,7 +388,7 @@ def _differences(rep: Reproduction) -> str:
     lag = [t1[n].collision_accel_m_s2 / ki * 1e6 for n in NUMBERS]
     reflected = (params.servo.rotor_inertia_kg_m2 + params.screw.screw_inertia_kg_m2) * params.screw.gear_rad_per_m**2
     moving = reflected + params.screw.support_mass_kg
-    stage1 = PAPER[3].measured_descent_accel_mm_s2[0] / (t1[3].ideal_descent_accel_m_s2[0] * 1e3)
+    stage1 = PUBLISHED[3].measured_descent_accel_mm_s2[0] / (t1[3].ideal_descent_accel_m_s2[0] * 1e3)
     disturbance = (1 - stage1) * CONDITIONS[3].loads[0].mass_kg * params.gravity_m_s2
     landing1 = SpringDamperContact(params.lander.mass_kg + CONDITIONS[1].stages_kg[-1], k1, d1)
     within = (
@@ -397,8 +397,8 @@ def _differences(rep: Reproduction) -> str:
     labels = [f"condition {n}'s {q}" for q in ("deformation", "acceleration") for n in NUMBERS]
     missed = [label for label, b in zip(labels, better, strict=True) if not b]
     not_closer = "It is closer on every value." if not missed else f"It is not closer on {', '.join(missed)}."
-    deformation_ratio = PAPER[3].measured_max_deformation_mm / PAPER[1].measured_max_deformation_mm
-    acceleration_ratio = PAPER[3].measured_collision_accel_mm_s2 / PAPER[1].measured_collision_accel_mm_s2
+    deformation_ratio = PUBLISHED[3].measured_max_deformation_mm / PUBLISHED[1].measured_max_deformation_mm
+    acceleration_ratio = PUBLISHED[3].measured_collision_accel_mm_s2 / PUBLISHED[1].measured_collision_accel_mm_s2
     fifty = t1[3].compensation_error_pct[0]
     paper_like = [rep.eq17["literal", "ki4000", n][0] for n in NUMBERS]
     return f"""1. **Descent acceleration.** The paper's simulated free falls are {SIMULATED_FREE_FALL_ERROR_PCT} %
@@ -409,7 +409,7 @@ def _differences(rep: Reproduction) -> str:
    Ki = {ki:g} s⁻² (k/M = {omega0_squared:.1f} s⁻²), fast because Eq. (17) read literally makes k negative.
    With Ki = {PAPER_LIKE_GAINS[1]:g} s⁻² the same loop falls {min(paper_like):+.2f} to {max(paper_like):+.2f} % fast,
    the paper's signature (Eq. 17 section). The 50 g stage, {fifty:+.2f} %, also carries the QZS guide's 0.2 N
-   friction. The experiment's 50 g stage ({PAPER[3].measured_descent_accel_mm_s2[0]} mm/s²,
+   friction. The experiment's 50 g stage ({PUBLISHED[3].measured_descent_accel_mm_s2[0]} mm/s²,
    {100 * (1 - stage1):.0f} % slow) points to a steady disturbance of about {disturbance:.2f} N that the guide's
    friction alone does not produce under this PID: sliding friction would, but the loop keeps the
    guide in its pre-sliding (elastic) range, where it acts as a stiffer spring rather than a drag.
@@ -458,7 +458,7 @@ def _eq17_table(rep: Reproduction) -> str:
     ki, (kp4000, ki4000) = load_gains(rep.controller).ki_per_s2, PAPER_LIKE_GAINS
     rows = []
     for number in NUMBERS:
-        paper = PAPER[number]
+        paper = PUBLISHED[number]
         for i, ideal in enumerate(rep.runs["paper", number].metrics.ideal_descent_accel_m_s2):
             cells = [_pct(rep.eq17[reading, label, number][i]) for label in ("pid", "ki4000") for reading in READINGS]
             stage = f", stage {i + 1}" if len(paper.simulated_descent_accel_mm_s2) > 1 else ""

@@ -32,7 +32,7 @@ class PaperCondition:
     measured_compensation_accuracy_pct: float  # Section 4.2
 
 
-CONDITIONS: dict[int, PaperCondition] = {
+PUBLISHED: dict[int, PaperCondition] = {
     1: PaperCondition(
         external_load_g=(490.0,),
         descent_height_mm=90.0,

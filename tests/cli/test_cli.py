@@ -191,7 +191,8 @@ def _cases():
     yield ["run", "--stiffness", "165", "--damping", "20"], "travel below touchdown"  # the screw's reach
     yield ["export-mjcf", "rig.xml", "--stiffness", "1e9"], "--stiffness"
     yield ["new\nline"], "new"
-    yield ["run", "--randomize", "--ideal"], "--randomize"
+    yield ["run", "--randomize", "--no-imperfections"], "--randomize"
+    yield ["run", "--randomize", "--ideal"], "--randomize"  # the option's name before 0.4.0
     yield ["run", "--controller", "residual-ppo", "--control-period", "500"], "trained at 1000 us"
     yield ["train", "--env", "CartPole-v1"], "--env"
     yield ["train", "--algo", "sac", "--resume", "{dir}"], "--resume"

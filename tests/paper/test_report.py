@@ -9,7 +9,7 @@ from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.paper import report, reproduction
 from microg_env.paper.calibration import with_pad
-from microg_env.paper.tables import CONDITIONS as PAPER
+from microg_env.paper.tables import PUBLISHED
 from microg_env.params import RigParams
 from microg_env.rollout.episode import run_with_metrics
 from microg_env.scenarios import CONDITIONS
@@ -65,7 +65,7 @@ def test_report_numbers_are_the_metrics_of_the_runs(reproduced, pad, number):
     assert f"{metrics.collision_accel_m_s2 * 1e3:.2f}" in markdown
     for accel in metrics.descent_accel_m_s2:
         assert f"{accel * 1e3:.3f}" in markdown
-    paper = PAPER[number]
+    paper = PUBLISHED[number]
     residual = 100 * (metrics.max_deformation_m * 1e3 - paper.measured_max_deformation_mm)
     residual /= paper.measured_max_deformation_mm
     assert summary["rig_residuals_pct"][pad]["max_deformation"][number - 1] == pytest.approx(residual)

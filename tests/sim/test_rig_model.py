@@ -17,7 +17,7 @@ from microg_env.params import (
     RigParams,
     ServoParams,
 )
-from microg_env.sim.ideal import IdealFollower
+from microg_env.sim.follower import PerfectFollower
 from microg_env.sim.model import (
     EPISODE_PARAMETERS,
     TEMPLATE_LOADS,
@@ -154,7 +154,7 @@ def test_ideal_following_gives_the_ideal_descent(loads):
     data = mujoco.MjData(rig.model)
     rig.reset(data, 0.09)
     rig.place_loads([True] * len(loads))
-    follower = IdealFollower(rig)
+    follower = PerfectFollower(rig)
     times, heights = [], []
     while data.time < 3.0 and rig.foot_height(data) > 0.005:
         follower.step(data)

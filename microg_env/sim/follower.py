@@ -1,4 +1,4 @@
-"""The ideal stroke amplifier: a support that follows the lander so that x stays exactly 0.
+"""The perfect follower: a support that follows the lander so that x stays exactly 0.
 
 It adds to the screw joint the generalised force that gives the QZS joint zero acceleration under
 every smooth force (gravity, springs, loads, the servo's own torque), then removes the rounding
@@ -16,7 +16,7 @@ import numpy as np
 from microg_env.sim.model import Rig
 
 
-class IdealFollower:
+class PerfectFollower:
     """Steps a rig's data with the support following the lander perfectly."""
 
     def __init__(self, rig: Rig) -> None:
