@@ -1,6 +1,7 @@
 """The documentation site and the front door: the site builds without a warning (a broken link, a
 page missing from the nav), and the README stays short and links only to files that exist."""
 
+import importlib
 import os
 import re
 import subprocess
@@ -36,3 +37,25 @@ def test_the_readme_is_a_short_front_door_whose_links_resolve():
     assert local, "the README links nothing"
     missing = [t for t in local if not (REPO / t).exists()]
     assert not missing, f"the README links files that do not exist: {missing}"
+
+
+def test_every_name_the_docs_cite_exists():
+    """A module, class or function named as `microg_env.x.y` in the README or the docs site is there
+    (CHANGELOG.md names old places on purpose)."""
+    pages = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+    names = sorted({n for page in pages for n in re.findall(r"`(microg_env(?:\.[A-Za-z_]\w*)+)", page.read_text())})
+    assert len(names) >= 5
+    missing = []
+    for name in names:
+        parts = name.split(".")
+        for i in range(len(parts), 0, -1):  # the longest importable module, then attributes
+            try:
+                found = importlib.import_module(".".join(parts[:i]))
+            except ImportError:
+                continue
+            for attribute in parts[i:]:
+                found = getattr(found, attribute, None)
+            break
+        if found is None:
+            missing.append(name)
+    assert not missing, f"the docs cite names that do not exist: {missing}"

@@ -1,7 +1,8 @@
 """The reproduction report: the paper's Figures 3-7 and Tables 3-6 beside this model's.
 
 :func:`write` renders the runs of :func:`microg_env.paper.reproduction.compute` as a Markdown report
-with PNG figures and a JSON file of every number, into a folder, atomically. Every number in the
+with PNG figures (:mod:`microg_env.paper.figures`) and a JSON file of every number, into a folder,
+atomically. Every number in the
 report is computed here from those runs and :mod:`microg_env.paper.tables` (the paper). What
 changed since earlier versions is CHANGELOG.md's.
 """
@@ -17,10 +18,11 @@ from pathlib import Path
 import mujoco
 
 from microg_env.analysis.formatting import MISSING, format_number
-from microg_env.analysis.metrics import COMPARED_WINDOW, contacts
-from microg_env.analysis.plots import envelope, figure_class, save_figure
+from microg_env.analysis.metrics import COMPARED_WINDOW
+from microg_env.analysis.plots import save_figure
 from microg_env.controllers import load_gains
 from microg_env.files import check_output_folder, replace_folder
+from microg_env.paper.figures import FIGURES, PAD_LABELS, render_figures
 from microg_env.paper.reproduction import (
     DRIFT_SEEDS,
     NUMBERS,
@@ -37,25 +39,13 @@ from microg_env.paper.tables import (
     experiment_relative_error_pct,
 )
 from microg_env.params import PHYSICS_STEP_S, RigParams
-from microg_env.rollout.runner import RunResult
 from microg_env.scenarios import CONDITIONS
 from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.model import flexible_unit
-from microg_env.trajectory import Trajectory
 from microg_env.version import __version__
 
 #: The physics step, in the report's unit.
 PHYSICS_STEP_US = PHYSICS_STEP_S * 1e6
-
-PAD_LABELS = {"paper": "Table 1 pad", "calibrated": "calibrated pad"}
-FIGURES = {
-    "fig3_flexible_unit.png": "Figure 3: flexible-unit displacement x",
-    "fig4_acceleration.png": "Figure 4: lander acceleration",
-    "fig5_force_deformation.png": "Figure 5: collision force against deformation",
-    "fig6_velocity_deformation.png": "Figure 6: deformation velocity against deformation",
-    "fig7_displacement.png": "Figure 7: lander displacement (foot height)",
-}
-
 
 # -- numbers --------------------------------------------------------------------------------------
 
@@ -597,63 +587,6 @@ drive's cogging ripple fills a solid band in which one pad's trace hides the oth
 ## Differences from the paper, explained
 
 {_differences(rep)}"""
-
-
-# -- figures --------------------------------------------------------------------------------------
-
-
-def _first_contact(trajectory: Trajectory) -> slice:
-    found = contacts(trajectory)
-    return slice(found[0].start, found[0].end) if found else slice(0, 0)
-
-
-def render_figures(rep: Reproduction) -> dict[str, object]:
-    """The equivalents of the paper's Figures 3-7, three conditions each."""
-    figure = figure_class()
-    made = {}
-    for name, title in FIGURES.items():
-        fig = figure(figsize=(8, 8), layout="constrained")
-        axes = fig.subplots(3, 1)
-        for ax, number in zip(axes, NUMBERS, strict=True):
-            for pad, style in (("paper", "-"), ("calibrated", "--")):
-                run = rep.runs[pad, number]
-                _draw(name, ax, run, style, PAD_LABELS[pad])
-            if name == "fig7_displacement.png":
-                reference = rep.runs["paper", number].reference
-                ax.plot(reference.time_s, reference.foot_height_m * 1e3, ":", color="k", label="ideal reference")
-            ax.set_title(f"condition {number}", fontsize=10)
-            ax.grid(alpha=0.3)
-        axes[0].legend(loc="best", fontsize=8)
-        fig.suptitle(title)
-        made[name] = fig
-    return made
-
-
-def _draw(name: str, ax, run: RunResult, style: str, label: str) -> None:
-    t = run.trajectory
-    contact = _first_contact(t)
-    if name == "fig3_flexible_unit.png":  # the cogging ripple as a band, so neither pad hides the other
-        centres, low, mean, high = envelope(t.time_s, t.x_m * 1e6)
-        line = ax.plot(centres, mean, style, lw=0.9, label=f"{label}: mean per bin")[0]
-        ax.fill_between(centres, low, high, color=line.get_color(), alpha=0.25, lw=0, label=f"{label}: min-max per bin")
-        ax.set_ylabel("x [µm]")
-        ax.set_xlabel("time [s]")
-    elif name == "fig4_acceleration.png":
-        ax.plot(t.time_s, t.lander_accel_m_s2 * 1e3, style, lw=0.7, label=label)
-        ax.set_ylabel("acceleration [mm/s²]")
-        ax.set_xlabel("time [s]")
-    elif name == "fig5_force_deformation.png":
-        ax.plot(-t.foot_height_m[contact] * 1e3, t.pad_force_n[contact], style, label=label)
-        ax.set_ylabel("collision force [N]")
-        ax.set_xlabel("deformation [mm]")
-    elif name == "fig6_velocity_deformation.png":
-        ax.plot(-t.foot_height_m[contact] * 1e3, -t.lander_velocity_m_s[contact] * 1e3, style, label=label)
-        ax.set_ylabel("deformation velocity [mm/s]")
-        ax.set_xlabel("deformation [mm]")
-    else:
-        ax.plot(t.time_s, t.foot_height_m * 1e3, style, label=label)
-        ax.set_ylabel("foot height [mm]")
-        ax.set_xlabel("time [s]")
 
 
 # -- output ---------------------------------------------------------------------------------------

@@ -83,10 +83,10 @@ def test_a_run_without_a_touchdown_says_so_in_the_zoom(three_stage):
 
 @pytest.mark.slow
 def test_figure_3_draws_both_pads_as_bands_that_do_not_hide_each_other():
-    from microg_env.paper import report, reproduction
+    from microg_env.paper import figures, reproduction
 
     rep = reproduction.compute(duration_s=6.0, workers=1)
-    figure = report.render_figures(rep)["fig3_flexible_unit.png"]
+    figure = figures.render_figures(rep)["fig3_flexible_unit.png"]
     assert len(figure.axes) == 3
     for ax in figure.axes:
         assert ax.get_ylabel() == "x [µm]"

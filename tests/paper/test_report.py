@@ -7,7 +7,7 @@ import pytest
 from microg_env.cli import main
 from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
-from microg_env.paper import report, reproduction
+from microg_env.paper import figures, report, reproduction
 from microg_env.paper.calibration import with_pad
 from microg_env.paper.tables import PUBLISHED
 from microg_env.params import RigParams
@@ -27,7 +27,7 @@ def reproduced(tmp_path_factory):
 @pytest.mark.slow
 def test_report_files(reproduced):
     out, _, markdown = reproduced
-    for name in report.FIGURES:
+    for name in figures.FIGURES:
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
         assert f"]({name})" in markdown
     for heading in (
