@@ -22,6 +22,7 @@ from microg_env.params import LOAD_CAPACITY_KG, RigParams
 from microg_env.scenarios import Scenario
 from microg_env.sim.limits import check_pad
 from microg_env.sim.model import validate_loads
+from microg_env.validate import FieldError
 
 
 @dataclass(frozen=True)
@@ -150,11 +151,13 @@ class DomainRandomization:
         most_load = sum(scenario.loads_kg) * (1.0 + self.load_mass)
         limit = lightest / 99.0
         if most_load > limit:
-            raise ValueError(
+            raise FieldError(
                 f"domain_randomization: DomainRandomization.lander_mass {self.lander_mass!r} with load_mass "
                 f"{self.load_mass!r} can draw "
                 f"{most_load:.3g} kg of test weights on a {lightest:.3g} kg lander, above the {limit:.3g} kg "
-                f"that keeps the field within the rig's 1e-2 g range"
+                f"that keeps the field within the rig's 1e-2 g range",
+                "domain_randomization",
+                "loads_kg",
             )
         pad, g = params.pad, params.gravity_m_s2
         for k_scale in (1.0 - self.pad_stiffness, 1.0 + self.pad_stiffness):
@@ -171,8 +174,9 @@ class DomainRandomization:
                         check_pad(
                             replace(params, pad=drawn), total, speed, most_load * g, physics_step_s, "extreme draw"
                         )
-                    except ValueError as error:
-                        raise ValueError(f"domain_randomization: {error}") from None
+                    except ValueError as error:  # the pad's fields, then the randomisation's
+                        fields = (*getattr(error, "fields", ()), "domain_randomization")
+                        raise FieldError(f"domain_randomization: {error}", *fields) from None
 
     def sample(
         self, params: RigParams, loads_kg: tuple[float, ...], rng: np.random.Generator

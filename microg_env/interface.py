@@ -40,6 +40,9 @@ SENSOR_SETS: dict[str, tuple[str, ...]] = {"extended": (), "paper": ("lander_acc
 #: maximum (Section 4.1), a fixed unit of the action whatever rig is simulated (a slower drive
 #: saturates on its own).
 MAX_SPEED_M_S = ScrewStageParams().max_speed_m_per_s
+#: What an action is: the drive's speed reference (``speed``) or an x setpoint on a base
+#: controller (``residual``).
+ACTION_MODES = ("speed", "residual")
 #: The x setpoint that the action +-1 stands for in the residual action mode, m (the default of
 #: the environment's ``residual_limit_m``).
 RESIDUAL_LIMIT_M = 1e-6

@@ -1,4 +1,4 @@
-"""Learned policies behind the controller interface, and the policies shipped with the package.
+"""Learned policies behind the controller interface.
 
 A policy trained in ``MicroGravityLanding-v1`` acts every ``decision_period`` control periods and,
 in the residual action mode, moves the setpoint of a base controller that commands the drive every
@@ -8,11 +8,12 @@ it rebuilds the observation the policy was trained on (its own previous action a
 controller's last command in entries 8 and 9) and composes the policy with its base.
 
 :class:`MLPPolicy` is a trained stable-baselines3 actor (PPO or SAC) exported to NumPy with its
-observation normalisation (``VecNormalize``), so a shipped policy runs without torch; the shipped
-policies live in ``microg_env/policies/<name>/`` with the exported network (``policy.npz``), the
-stable-baselines3 model and normalisation for fine-tuning (``model.zip``, ``vecnormalize.pkl``)
-and the command, seed, budget and results of their training (``policy.json``). Finding a policy
-by name or folder, and checking a folder before it runs, is :mod:`microg_env.controllers.registry`'s.
+observation normalisation (``VecNormalize``), so a shipped policy runs without torch. A policy folder
+holds the exported network (``policy.npz``) and the command, seed, budget and results of its
+training (``policy.json``); a training run's folder also the stable-baselines3 model and
+normalisation to fine-tune from (``model.zip``, ``vecnormalize.pkl``, kept for the shipped policies
+in the source tree, not in the wheel). Finding a policy by name or folder, and checking a folder
+before it runs, is :mod:`microg_env.controllers.registry`'s.
 """
 
 from __future__ import annotations

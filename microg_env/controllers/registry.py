@@ -21,8 +21,9 @@ from microg_env.controllers.base import Controller
 from microg_env.controllers.feedforward import AdaptiveFeedforward, Feedforward, Oracle
 from microg_env.controllers.pid import PID, load_gains
 from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy, PolicyController
-from microg_env.interface import RESIDUAL_LIMIT_M
+from microg_env.interface import ACTION_MODES, RESIDUAL_LIMIT_M
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, RigParams
+from microg_env.validate import FieldError
 
 #: The classical baselines: the paper's PID, its derivative-on-measurement variant, the PID with
 #: the nominal model's feed-forward, that feed-forward learning the motor's cogging as it runs
@@ -108,7 +109,7 @@ def policy_card(folder: str | Path) -> dict[str, Any]:
 def _check_deployment(env: dict[str, Any]) -> None:
     """The env_kwargs a deployed policy reads: of the right kinds and ranges, the base controller a
     classical one (a policy on a policy, or on itself, is refused)."""
-    validate.choice("action_mode", env.get("action_mode", "speed"), ("speed", "residual"))
+    validate.choice("action_mode", env.get("action_mode", "speed"), ACTION_MODES)
     validate.choice("base_controller", env.get("base_controller", "pid"), BASELINES)
     if type(env.get("decision_period", 1)) is not int:
         raise ValueError(f"decision_period must be an integer, got {env['decision_period']!r}")
@@ -139,9 +140,10 @@ def load_policy(folder: str | Path, control_period_s: float) -> PolicyController
     env = card["env_kwargs"]
     trained_period = float(env.get("control_period_s", CONTROL_PERIOD_S))
     if abs(control_period_s - trained_period) > 1e-9:
-        raise ValueError(
+        raise FieldError(
             f"control_period_s {control_period_s!r}: policy {Path(folder).name!r} was trained at "
-            f"{trained_period * 1e6:g} us and runs only at that period"
+            f"{trained_period * 1e6:g} us and runs only at that period",
+            "control_period_s",
         )
     return deployed_controller(policy, env)
 

@@ -1,6 +1,7 @@
 """The landing task over N rigs as arrays: one code path for the single env (N = 1) and the vector env.
 
-:class:`LandingCore` validates the task's settings once, builds the rig, draws each rig's episode
+:class:`LandingCore` takes the task's settings (:class:`~microg_env.envs.settings.TaskSettings`,
+checked there), builds the rig, draws each rig's episode
 (schedule, domain randomisation, start height, balancer drift) from that rig's own generator, and
 steps N rigs together: the episode's model field values (test weights placed, pad law, balancer
 trim, randomised lander and friction) are written per rig (:meth:`Rig.episode_fields`), and the
@@ -98,7 +99,8 @@ class Episode:
 
 
 class LandingCore:
-    """N rigs of ``MicroGravityLanding-v1`` (the arguments are the environment's; see its docstring).
+    """N rigs of ``MicroGravityLanding-v1`` with the task's ``settings`` (the environment's keywords;
+    see its docstring).
 
     ``scenarios`` gives each rig its own schedule (N of them; instead of ``scenario``/``condition``).
     ``batched`` steps the rigs on ``mujoco.batch`` with ``nthread`` threads (0: every core); else
@@ -464,14 +466,14 @@ def check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
     return np.minimum(np.maximum(values, -1.0), 1.0)  # out-of-range actions are clipped to the drive's range
 
 
-def _check_reset_noise(reset_noise_scale: float, scenario: Scenario) -> float:
-    """The start-height perturbation must keep the start clear of the pad and of every switch height."""
-    noise = validate.non_negative("reset_noise_scale", reset_noise_scale, "m")
+def _check_reset_noise(noise: float, scenario: Scenario) -> None:
+    """The start-height perturbation (checked non-negative by TaskSettings) must keep the start clear
+    of the pad and of every switch height of ``scenario``."""
     room = scenario.descent_height_m - max(scenario.lowest_switch_height_m, 0.0) - START_CLEARANCE_M
     if noise > 0 and noise > room:
-        raise ValueError(
-            f"reset_noise_scale {reset_noise_scale!r} m would start the foot below "
+        raise FieldError(
+            f"reset_noise_scale {noise!r} m would start the foot below "
             f"{max(scenario.lowest_switch_height_m, 0.0) * 1e3:g} mm + 1 mm (the pad or a load's switch height); "
-            f"at most {max(room, 0.0):.4g} m for {scenario.name}"
+            f"at most {max(room, 0.0):.4g} m for {scenario.name}",
+            "reset_noise_scale",
         )
-    return noise

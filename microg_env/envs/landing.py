@@ -49,7 +49,8 @@ class MicroGravityLandingEnv(gym.Env):
     * ``action_mode="speed"`` (default): the servo drive's speed reference for the support, scaled
       to +-1250 mm/s (the mechanism's maximum, Section 4.1), up positive;
     * ``action_mode="residual"``: a setpoint for x, scaled to +-``residual_limit_m`` (1 um), on a
-      base controller (``base_controller``: ``pid``, ``pid-dom`` or ``feedforward``) that commands the
+      base controller (``base_controller``: ``pid``, ``pid-dom``, ``feedforward``, ``adaptive`` or
+      ``oracle``, which is told each episode's plant) that commands the
       drive every control period from the latest observation. An action of 0 is the base controller.
 
     Out-of-range values are clipped to [-1, 1]; NaN, infinite, non-numeric or wrongly shaped
@@ -148,6 +149,7 @@ class MicroGravityLandingEnv(gym.Env):
 
     def __init__(
         self,
+        *,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,

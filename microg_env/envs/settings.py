@@ -16,15 +16,12 @@ from typing import Any
 from microg_env import validate
 from microg_env.controllers.registry import BASELINES
 from microg_env.imperfections import DomainRandomization, Imperfections
-from microg_env.interface import RESIDUAL_LIMIT_M, SENSOR_SETS
+from microg_env.interface import ACTION_MODES, RESIDUAL_LIMIT_M, SENSOR_SETS
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import Scenario, ScenarioSampler
 from microg_env.scenarios import condition as paper_condition
 from microg_env.sim.model import check_physics_step
 from microg_env.validate import FieldError
-
-#: The actions the environment takes (``action_mode``).
-ACTION_MODES = ("speed", "residual")
 
 
 @dataclass(frozen=True)

@@ -70,6 +70,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
             raise ValueError(f"autoreset_mode must be one of {modes}, got {autoreset_mode!r}") from None
         nthread = validate.integer("nthread", nthread, 0, 1024)
         self.core = LandingCore(self.num_envs, TaskSettings(**kwargs), scenarios, batched=True, nthread=nthread)
+        self.settings = self.core.settings
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         self.render_mode = None
         self.single_action_space = action_space()

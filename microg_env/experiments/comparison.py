@@ -26,6 +26,8 @@ from microg_env.analysis.paired import Paired, paired
 from microg_env.analysis.summary import Summary, finite_mean, summarise
 from microg_env.controllers.registry import CONTROLLER_NAMES, check_controller_name
 from microg_env.params import CONTROL_PERIOD_S
+from microg_env.rollout.runner import run_many
+from microg_env.rollout.spec import RunSpec
 from microg_env.scenarios import Scenario, comparison_scenarios
 from microg_env.trajectory import Trajectory
 
@@ -284,9 +286,6 @@ def compare(
         reference=reference,
         sensor_set=sensor_set,
     )
-    from microg_env.rollout.runner import run_many
-    from microg_env.rollout.spec import RunSpec
-
     specs = []
     for case in cases:
         length = (

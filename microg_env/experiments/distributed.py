@@ -40,7 +40,6 @@ HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0
 HTTP2_SETTINGS = 4
 #: Seconds between the driver's looks at a Ctrl-C while it waits for tasks.
 WAIT_S = 0.2
-#: The campaign's table, in its folder.
 #: The campaign file as it was run, in its folder.
 CAMPAIGN_COPY = "campaign.json"
 

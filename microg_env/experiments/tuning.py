@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from microg_env import validate
 from microg_env.analysis.summary import control_cost
 from microg_env.controllers.pid import PIDGains, load_gains
 from microg_env.rollout.runner import RunResult, error_text, run_all, run_many
@@ -114,6 +115,8 @@ def run_with_retuning(
     spec first re-tuned on its rig and period (:func:`retune`, once per rig) and run as ``pid`` with
     those gains (its own ``gains`` replacing them field by field). Results carry the spec as given
     and the gains in ``tuned_gains``; a spec whose tuning fails fails alone."""
+    for spec in specs:  # before anything is tuned
+        validate.instance("run spec", spec, RunSpec)
     tuned: dict[str, dict[str, float] | BaseException] = {}
     runnable, gains, members = [], [], []
     for i, spec in enumerate(specs):

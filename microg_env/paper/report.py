@@ -38,14 +38,11 @@ from microg_env.paper.tables import (
     WORST_DEFORMATION_ERROR_PCT,
     experiment_relative_error_pct,
 )
-from microg_env.params import PHYSICS_STEP_S, RigParams
+from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS
 from microg_env.sim.contact import SpringDamperContact
 from microg_env.sim.model import flexible_unit
 from microg_env.version import __version__
-
-#: The physics step, in the report's unit.
-PHYSICS_STEP_US = PHYSICS_STEP_S * 1e6
 
 # -- numbers --------------------------------------------------------------------------------------
 

@@ -17,6 +17,7 @@ import numpy as np
 from gymnasium.utils import seeding
 
 from microg_env.controllers.base import tell_plants
+from microg_env.controllers.registry import make_controller
 from microg_env.envs.core import TERMINATION_REASONS, LandingCore
 from microg_env.envs.settings import TaskSettings
 from microg_env.params import RigParams
@@ -78,8 +79,6 @@ def run_batch(episodes: Sequence[EpisodeSpec], *args, **kwargs) -> list[tuple[Tr
 
 
 def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, RigParams, str | None]]:
-    from microg_env.controllers.registry import make_controller
-
     n = len(episodes)
     core = LandingCore(n, TaskSettings(**settings), [e.scenario for e in episodes], batched=True, nthread=nthread)
     rngs = [seeding.np_random(e.seed)[0] for e in episodes]

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from microg_env.validate import FieldError
+
 
 def _check(mass_kg: float, stiffness_n_per_m: float, damping_n_s_per_m: float) -> None:
     for name, value in (
@@ -30,17 +32,22 @@ def _check(mass_kg: float, stiffness_n_per_m: float, damping_n_s_per_m: float) -
         ("damping", damping_n_s_per_m),
     ):
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+            raise FieldError(f"{name} must be a positive finite number, got {value!r}", name)
     product = stiffness_n_per_m * mass_kg
     if not (math.isfinite(product) and product > 0 and math.isfinite(math.sqrt(stiffness_n_per_m / mass_kg))):
-        raise ValueError(
-            f"stiffness {stiffness_n_per_m!r} N/m and mass {mass_kg!r} kg are outside what floating point can take"
+        raise FieldError(
+            f"stiffness {stiffness_n_per_m!r} N/m and mass {mass_kg!r} kg are outside what floating point can take",
+            "stiffness_n_per_m",
+            "mass_kg",
         )
     ratio = damping_ratio(mass_kg, stiffness_n_per_m, damping_n_s_per_m)
     if ratio >= 1.0:
-        raise ValueError(
+        raise FieldError(
             f"damping {damping_n_s_per_m!r} N s/m makes the pad over-damped (xi = {ratio:.3f} >= 1) for "
-            f"mass {mass_kg!r} kg and stiffness {stiffness_n_per_m!r} N/m; Section 2 needs xi < 1"
+            f"mass {mass_kg!r} kg and stiffness {stiffness_n_per_m!r} N/m; Section 2 needs xi < 1",
+            "damping_n_s_per_m",
+            "stiffness_n_per_m",
+            "mass_kg",
         )
 
 

@@ -179,6 +179,11 @@ def _cases():
     yield ["run", "--stiffness", "1e10"], "stiffness"
     yield ["run", "--stiffness", "10"], "stiffness"
     yield ["run", "--damping", "5000"], "damping"
+    # Named by the option, from the fields the errors carry (the cold review of the structured errors).
+    yield ["run", "--damping", "5000"], "--damping"  # over-damped
+    yield ["drop", "--damping", "1e5"], "--damping"
+    yield ["run", "--stiffness", "250", "--randomize"], "--stiffness"  # a draw would bottom out
+    yield ["run", "--controller", "residual-ppo", "--control-period", "500"], "--control-period"
     yield ["run", "--duration", "600", "--control-period", "100"], "steps"
     yield ["drop", "--mass", "700"], "--mass"
     yield ["drop", "--velocity", "0.32"], "thickness"
