@@ -14,6 +14,7 @@ import math
 import os
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import mujoco
 
@@ -108,6 +109,7 @@ def summary(rep: Reproduction) -> dict:
             for label in ("pid", "ki4000")
         },
         "drift_fifty_gram_stage_error_pct": {"seeds": list(DRIFT_SEEDS), **rep.drift},
+        "differences": differences(rep),
     }
 
 
@@ -350,79 +352,148 @@ def _power_law_exponents() -> tuple[float, float, float]:
     return speed_ratio, 2.0 / p - 1.0, q / (2.0 - q)
 
 
-def _differences(rep: Reproduction) -> str:
+def differences(rep: Reproduction) -> dict[str, Any]:
+    """Every number the "Differences from the paper" section states, computed from the runs, the
+    paper's tables and the rig's parameters (report.json's ``differences``)."""
     t1 = {n: rep.runs["paper", n].metrics for n in NUMBERS}
     errors = [e for n in NUMBERS for e in t1[n].compensation_error_pct]
     excursion = [t1[n].flexible_unit_excursion_collision_m * 1e6 for n in NUMBERS]
-    instant = [t1[n].x_change_after_touchdown_m[COMPARED_WINDOW] * 1e6 for n in NUMBERS]
     deformation, acceleration = residuals(rep, "calibrated")
     paper_deformation, paper_acceleration = paper_residuals()
-    better = [
-        abs(a) < abs(b) for a, b in zip(deformation + acceleration, paper_deformation + paper_acceleration, strict=True)
-    ]
     sim_fit = rep.simulation_fit
-    k1, d1 = rep.pads["paper"]
-    kc, dc = rep.pads["calibrated"]
+    (k1, d1), (kc, dc) = rep.pads["paper"], rep.pads["calibrated"]
     speed_ratio, n_deformation, n_acceleration = _power_law_exponents()
-    fidelity = [abs(t1[n].max_deformation_m / t1[n].reference_max_deformation_m - 1) * 100 for n in NUMBERS]
-    fidelity_acc = [abs(t1[n].collision_accel_m_s2 / t1[n].reference_collision_accel_m_s2 - 1) * 100 for n in NUMBERS]
-    worst_d = max(abs(v) for v in deformation)
-    worst_a = max(abs(v) for v in acceleration)
     params = RigParams()
     unit = flexible_unit(params)
     omega0_squared = unit.x_stiffness_n_per_m / params.lander.mass_kg
     ki = load_gains(rep.controller).ki_per_s2
-    lag = [t1[n].collision_accel_m_s2 / ki * 1e6 for n in NUMBERS]
     reflected = (params.servo.rotor_inertia_kg_m2 + params.screw.screw_inertia_kg_m2) * params.screw.gear_rad_per_m**2
-    moving = reflected + params.screw.support_mass_kg
     stage1 = PUBLISHED[3].measured_descent_accel_mm_s2[0] / (t1[3].ideal_descent_accel_m_s2[0] * 1e3)
-    disturbance = (1 - stage1) * CONDITIONS[3].loads[0].mass_kg * params.gravity_m_s2
     landing1 = SpringDamperContact(params.lander.mass_kg + CONDITIONS[1].stages_kg[-1], k1, d1)
+    paper_like = [rep.eq17["literal", "ki4000", n][0] for n in NUMBERS]
+    return {
+        "descent_error_pct": [min(errors), max(errors)],
+        "integral_lag_error_pct": -100 * omega0_squared / (ki + omega0_squared),  # -(k/Ki)/(M + m + k/Ki)
+        "ki_per_s2": ki,
+        "omega0_squared_per_s2": omega0_squared,
+        "paper_like_ki_per_s2": PAPER_LIKE_GAINS[1],
+        "paper_like_descent_error_pct": [min(paper_like), max(paper_like)],
+        "fifty_gram_error_pct": t1[3].compensation_error_pct[0],
+        "fifty_gram_measured_mm_s2": PUBLISHED[3].measured_descent_accel_mm_s2[0],
+        "fifty_gram_slow_pct": 100 * (1 - stage1),
+        "fifty_gram_disturbance_n": (1 - stage1) * CONDITIONS[3].loads[0].mass_kg * params.gravity_m_s2,
+        "collision_excursion_um": excursion,
+        "integral_lag_at_collision_um": [t1[n].collision_accel_m_s2 / ki * 1e6 for n in NUMBERS],
+        "speed_loop_gain_hz": params.servo.speed_loop_gain_hz,
+        "moving_mass_kg": reflected + params.screw.support_mass_kg,
+        "instant_change_um": [t1[n].x_change_after_touchdown_m[COMPARED_WINDOW] * 1e6 for n in NUMBERS],
+        "force_error_n": max(excursion) * 1e-6 * abs(unit.x_stiffness_n_per_m),
+        "deformation_fidelity_pct": max(
+            abs(t1[n].max_deformation_m / t1[n].reference_max_deformation_m - 1) * 100 for n in NUMBERS
+        ),
+        "acceleration_fidelity_pct": max(
+            abs(t1[n].collision_accel_m_s2 / t1[n].reference_collision_accel_m_s2 - 1) * 100 for n in NUMBERS
+        ),
+        "table1_pad": [k1, d1],
+        "calibrated_pad": [kc, dc],
+        "condition_1_impact_speed_mm_s": t1[1].impact_speed_m_s * 1e3,
+        "condition_1_max_deformation_mm": t1[1].max_deformation_m * 1e3,
+        "condition_1_collision_accel_mm_s2": t1[1].collision_accel_m_s2 * 1e3,
+        "simulation_fit_pad": [sim_fit.stiffness_n_per_m, sim_fit.damping_n_s_per_m],
+        "simulation_fit_residuals_pct": [*sim_fit.max_deformation_pct, *sim_fit.collision_accel_pct],
+        "simulation_fit_stiffness_ratio": sim_fit.stiffness_n_per_m / k1,
+        "calibrated_ratios": [kc / k1, dc / d1],
+        "calibrated_worst_pct": [max(abs(v) for v in deformation), max(abs(v) for v in acceleration)],
+        "calibrated_closer": [
+            abs(a) < abs(b)
+            for a, b in zip(deformation + acceleration, paper_deformation + paper_acceleration, strict=True)
+        ],
+        "impact_speed_ratio_3_to_1": speed_ratio,
+        "measured_ratios_3_to_1": [
+            PUBLISHED[3].measured_max_deformation_mm / PUBLISHED[1].measured_max_deformation_mm,
+            PUBLISHED[3].measured_collision_accel_mm_s2 / PUBLISHED[1].measured_collision_accel_mm_s2,
+        ],
+        "power_law_exponents": [n_deformation, n_acceleration],
+        "contact_shorter_than_half_period_pct": 100 * (1 - landing1.contact_time_s / landing1.half_period_s),
+    }
+
+
+def _differences(rep: Reproduction) -> str:
+    """The "Differences from the paper" section: prose around :func:`differences`."""
+    f = differences(rep)
+    worst_d, worst_a = f["calibrated_worst_pct"]
     within = (
         "within" if worst_d <= WORST_DEFORMATION_ERROR_PCT and worst_a <= WORST_COLLISION_ERROR_PCT else "NOT within"
     )
     labels = [f"condition {n}'s {q}" for q in ("deformation", "acceleration") for n in NUMBERS]
+    better = f["calibrated_closer"]
     missed = [label for label, b in zip(labels, better, strict=True) if not b]
     not_closer = "It is closer on every value." if not missed else f"It is not closer on {', '.join(missed)}."
-    deformation_ratio = PUBLISHED[3].measured_max_deformation_mm / PUBLISHED[1].measured_max_deformation_mm
-    acceleration_ratio = PUBLISHED[3].measured_collision_accel_mm_s2 / PUBLISHED[1].measured_collision_accel_mm_s2
-    fifty = t1[3].compensation_error_pct[0]
-    paper_like = [rep.eq17["literal", "ki4000", n][0] for n in NUMBERS]
+    (k1, d1), (kc, dc) = f["table1_pad"], f["calibrated_pad"]
+    low, high = f["descent_error_pct"]
+    paper_low, paper_high = f["paper_like_descent_error_pct"]
+    sim_k, sim_d = f["simulation_fit_pad"]
+    k_ratio, d_ratio = f["calibrated_ratios"]
+    deformation_ratio, acceleration_ratio = f["measured_ratios_3_to_1"]
+    n_deformation, n_acceleration = f["power_law_exponents"]
+    lag_error = f["integral_lag_error_pct"]
+    ki = f["ki_per_s2"]
+    omega0_squared = f["omega0_squared_per_s2"]
+    paper_ki = f["paper_like_ki_per_s2"]
+    fifty = f["fifty_gram_error_pct"]
+    fifty_measured = f["fifty_gram_measured_mm_s2"]
+    slow = f["fifty_gram_slow_pct"]
+    disturbance = f["fifty_gram_disturbance_n"]
+    excursion = f["collision_excursion_um"]
+    lag = f["integral_lag_at_collision_um"]
+    speed_loop = f["speed_loop_gain_hz"]
+    moving = f["moving_mass_kg"]
+    instant = f["instant_change_um"]
+    force_error = f["force_error_n"]
+    fidelity = f["deformation_fidelity_pct"]
+    fidelity_acc = f["acceleration_fidelity_pct"]
+    impact_1 = f["condition_1_impact_speed_mm_s"]
+    deformation_1 = f["condition_1_max_deformation_mm"]
+    accel_1 = f["condition_1_collision_accel_mm_s2"]
+    sim_residuals = f["simulation_fit_residuals_pct"]
+    sim_ratio = f["simulation_fit_stiffness_ratio"]
+    speed_ratio = f["impact_speed_ratio_3_to_1"]
+    shorter = f["contact_shorter_than_half_period_pct"]
     return f"""1. **Descent acceleration.** The paper's simulated free falls are {SIMULATED_FREE_FALL_ERROR_PCT} %
    *faster* than the ideal m g/(M + m) (Table 3 against Table 2); this model's are
-   {min(errors):+.2f} % to {max(errors):+.2f} %. A PID on x makes the support accelerate only through its
+   {low:+.2f} % to {high:+.2f} %. A PID on x makes the support accelerate only through its
    integral, so it holds x = a/Ki in a steady fall, and the residual stiffness k turns that into a
-   force: the error is −(k/Ki)/(M + m + k/Ki) = {-100 * omega0_squared / (ki + omega0_squared):+.2f} % for the tuned
+   force: the error is −(k/Ki)/(M + m + k/Ki) = {lag_error:+.2f} % for the tuned
    Ki = {ki:g} s⁻² (k/M = {omega0_squared:.1f} s⁻²), fast because Eq. (17) read literally makes k negative.
-   With Ki = {PAPER_LIKE_GAINS[1]:g} s⁻² the same loop falls {min(paper_like):+.2f} to {max(paper_like):+.2f} % fast,
+   With Ki = {paper_ki:g} s⁻² the same loop falls {paper_low:+.2f} to {paper_high:+.2f} % fast,
    the paper's signature (Eq. 17 section). The 50 g stage, {fifty:+.2f} %, also carries the QZS guide's 0.2 N
-   friction. The experiment's 50 g stage ({PUBLISHED[3].measured_descent_accel_mm_s2[0]} mm/s²,
-   {100 * (1 - stage1):.0f} % slow) points to a steady disturbance of about {disturbance:.2f} N that the guide's
+   friction. The experiment's 50 g stage ({fifty_measured} mm/s²,
+   {slow:.0f} % slow) points to a steady disturbance of about {disturbance:.2f} N that the guide's
    friction alone does not produce under this PID: sliding friction would, but the loop keeps the
    guide in its pre-sliding (elastic) range, where it acts as a stiffer spring rather than a drag.
 2. **Flexible-unit excursion at the collision.** The paper reports 0.2, 0.3 and 0.15 µm; this model
    {", ".join(f"{v:.1f}" for v in excursion)} µm at most over the whole contact, of which the PID's integral
    lag a/Ki at the peak collision acceleration is {", ".join(f"{v:.1f}" for v in lag)} µm (a PID on x makes the
    support accelerate only through its integral, as in the descent); the rest is the drive
-   ({params.servo.speed_loop_gain_hz:g} Hz speed loop, a control period of delay, {moving:.0f} kg of moving and
+   ({speed_loop:g} Hz speed loop, a control period of delay, {moving:.0f} kg of moving and
    reflected inertia). The paper's own quantity, the change at the instant of collision, max |x − x(touchdown)|
    over the first 5 ms of contact, is {", ".join(f"{v:.2f}" for v in instant)} µm. The force error this causes
-   ({max(excursion) * 1e-6 * abs(unit.x_stiffness_n_per_m):.2f} N at most)
+   ({force_error:.2f} N at most)
    is small beside the impact force, and the rig still lands as the ideal microgravity reference to
-   {max(fidelity):.3f} % in peak deformation and {max(fidelity_acc):.2f} % in collision acceleration.
+   {fidelity:.3f} % in peak deformation and {fidelity_acc:.2f} % in collision acceleration.
 3. **Peak deformation and collision acceleration with Table 1's pad.** With K = {k1:g} N/m,
    D = {d1:g} N s/m and Table 2's heights the lander meets the pad at
-   {t1[1].impact_speed_m_s * 1e3:.1f} mm/s (condition 1) and deforms it by
-   {t1[1].max_deformation_m * 1e3:.2f} mm, not Table 3's 9.20 mm; its collision acceleration,
-   {t1[1].collision_accel_m_s2 * 1e3:.1f} mm/s², is below Table 3's 130.2 mm/s². Both point the same way:
+   {impact_1:.1f} mm/s (condition 1) and deforms it by
+   {deformation_1:.2f} mm, not Table 3's 9.20 mm; its collision acceleration,
+   {accel_1:.1f} mm/s², is below Table 3's 130.2 mm/s². Both point the same way:
    a stiffer pad. Fitting this model to the paper's own simulated values (Tables 5–6, theoretical)
-   gives K = {sim_fit.stiffness_n_per_m:.0f} N/m and D = {sim_fit.damping_n_s_per_m:.0f} N s/m
-   (residuals {", ".join(_pct(v) for v in sim_fit.max_deformation_pct + sim_fit.collision_accel_pct)}):
-   the paper's simulation behaved like a pad {sim_fit.stiffness_n_per_m / k1:.2f} times stiffer than its
+   gives K = {sim_k:.0f} N/m and D = {sim_d:.0f} N s/m
+   (residuals {", ".join(_pct(v) for v in sim_residuals)}):
+   the paper's simulation behaved like a pad {sim_ratio:.2f} times stiffer than its
    Table 1, so Table 1's K is not what produced Table 3. No hidden factor is added here; the Table 1
    pad is reported as it is.
 4. **Calibration.** Least squares on the six experimental values (Tables 5–6, actual) gives
-   K = {kc:.0f} N/m and D = {dc:.0f} N s/m ({kc / k1:.2f} × and {dc / d1:.2f} × Table 1's), close to the pad the
+   K = {kc:.0f} N/m and D = {dc:.0f} N s/m ({k_ratio:.2f} × and {d_ratio:.2f} × Table 1's), close to the pad the
    paper's simulation implies. On the full rig its residuals are {within} the paper's own worst errors
    ({worst_d:.2f} % against {WORST_DEFORMATION_ERROR_PCT} % in deformation, {worst_a:.2f} % against
    {WORST_COLLISION_ERROR_PCT} % in acceleration), and closer to the experiment than the paper's simulation
@@ -433,7 +504,7 @@ def _differences(rep: Reproduction) -> str:
    the linear pad is kept.
 5. **Contact time and restitution.** The paper's Eqs. (10) and (12) take the contact to last half a
    damped period; the pad cannot pull, so the foot leaves when the force returns to zero (Eq. 7),
-   {100 * (1 - landing1.contact_time_s / landing1.half_period_s):.1f} %
+   {shorter:.1f} %
    earlier, and rebounds faster (Eq. 9). In the rig the load's weight also presses during the
    contact, which lengthens it and lowers the restitution a little further than the field-free closed
    form (table above); the drop test (`microg drop`) checks the field-free case to 0.01 %.

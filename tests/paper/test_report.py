@@ -136,3 +136,18 @@ def test_the_fresh_clone_default_output_folder_is_created(tmp_path, monkeypatch)
     monkeypatch.setattr(reproduction, "compute", lambda **kwargs: pytest.fail("validated before running"))
     assert main(["reproduce", "--quiet", "--duration", "0"]) == 2  # a bad option still creates nothing
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_the_differences_section_states_the_numbers_report_json_records(reproduced):
+    """The prose reads its numbers from one record (report.json's "differences"), not from physics
+    computed inside the text."""
+    _, summary, markdown = reproduced
+    found = summary["differences"]
+    section = markdown.split("## Differences from the paper, explained", 1)[1]
+    low, high = found["descent_error_pct"]
+    assert f"this model's are\n   {low:+.2f} % to {high:+.2f} %" in section
+    assert f"−(k/Ki)/(M + m + k/Ki) = {found['integral_lag_error_pct']:+.2f} %" in section
+    assert f"({found['force_error_n']:.2f} N at most)" in section
+    assert f"a pad {found['simulation_fit_stiffness_ratio']:.2f} times stiffer" in section
+    assert len(found["instant_change_um"]) == 3
