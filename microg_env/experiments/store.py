@@ -140,8 +140,9 @@ class ResultStore:
 
     def _damaged(self, path: Path, error: Exception) -> ValueError:
         return ValueError(
-            f"campaign results: {str(path)!r} cannot be read with the others ({fault(error)}); move it out of "
-            f"{str(path.parent)!r} and run the campaign again (its runs are run again)"
+            f"campaign results: {'table' if path == self.results else 'part file'} {str(path)!r} cannot be read "
+            f"with the others ({fault(error)}); move it out of {str(path.parent)!r} and run the campaign again "
+            "(its runs are run again)"
         )
 
     def statuses(self) -> dict[str, str]:

@@ -136,8 +136,9 @@ def run_with_retuning(
                 progress(1)
             yield [(i, RunResult(spec, None, error_text(chosen)))]
             continue
-        runnable.append(spec.replace(controller="pid", gains=chosen | dict(spec.gains)))
-        gains.append(chosen | dict(spec.gains))
+        merged = chosen | dict(spec.gains)
+        runnable.append(spec.replace(controller="pid", gains=merged))
+        gains.append(merged)
         members.append(i)
     for batch in run_many(runnable, workers, progress, keep_trajectories):
         yield [(members[k], replace(r, spec=specs[members[k]], tuned_gains=gains[k])) for k, r in batch]

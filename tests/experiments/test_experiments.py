@@ -733,6 +733,11 @@ def test_a_damaged_part_file_is_named_with_what_to_do(tmp_path):
     store.write([{"spec_hash": "c", "status": "ok", "x_m": 2.0}])
     with pytest.raises(ValueError, match=r"part-bad\.parquet"):
         store.statuses()
+    # a damaged table (read as the oldest part) is named as the table, with its own folder
+    bad.unlink()
+    store.results.write_bytes(b"PAR1 cut short")
+    with pytest.raises(ValueError, match=r"table .*results\.parquet.* move it out of '" + str(tmp_path) + "'"):
+        store.statuses()
 
 
 def test_campaign_files_refuse_a_key_given_twice_and_read_exponents_as_numbers(tmp_path):
