@@ -265,7 +265,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from microg_env.paper.calibration import calibrate
-    from microg_env.paper.report import paper_residuals
+    from microg_env.paper.findings import paper_residuals
     from microg_env.paper.tables import PUBLISHED
 
     result = calibrate(source=args.source)

@@ -1,10 +1,9 @@
 """The reproduction report: the paper's Figures 3-7 and Tables 3-6 beside this model's.
 
-:func:`write` renders the runs of :func:`microg_env.paper.reproduction.compute` as a Markdown report
-with PNG figures (:mod:`microg_env.paper.figures`) and a JSON file of every number, into a folder,
-atomically. Every number in the
-report is computed here from those runs and :mod:`microg_env.paper.tables` (the paper). What
-changed since earlier versions is CHANGELOG.md's.
+:func:`write` renders the runs of :func:`microg_env.paper.reproduction.compute` into a folder,
+atomically: report.json, the findings record of every number
+(:func:`microg_env.paper.findings.findings`); report.md, rendered from that record alone; and the
+figures (:mod:`microg_env.paper.figures`). What changed since earlier versions is CHANGELOG.md's.
 """
 
 from __future__ import annotations
@@ -12,105 +11,37 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import replace
 from pathlib import Path
-from typing import Any
-
-import mujoco
+from types import SimpleNamespace
 
 from microg_env.analysis.formatting import MISSING, format_number
-from microg_env.analysis.metrics import COMPARED_WINDOW
 from microg_env.analysis.plots import save_figure
-from microg_env.controllers import load_gains
 from microg_env.files import check_output_folder, replace_folder
 from microg_env.paper.figures import FIGURES, PAD_LABELS, render_figures
-from microg_env.paper.reproduction import (
-    DRIFT_SEEDS,
-    NUMBERS,
-    PADS,
-    PAPER_LIKE_GAINS,
-    READINGS,
-    Reproduction,
-)
+from microg_env.paper.findings import findings
+from microg_env.paper.reproduction import NUMBERS, PADS, READINGS, Reproduction
 from microg_env.paper.tables import (
     PUBLISHED,
     SIMULATED_FREE_FALL_ERROR_PCT,
     WORST_COLLISION_ERROR_PCT,
     WORST_DEFORMATION_ERROR_PCT,
-    experiment_relative_error_pct,
 )
-from microg_env.params import RigParams
-from microg_env.scenarios import CONDITIONS
-from microg_env.sim.contact import SpringDamperContact
-from microg_env.sim.model import flexible_unit
-from microg_env.version import __version__
 
-# -- numbers --------------------------------------------------------------------------------------
+
+def _metrics(found: dict, pad: str, number: int) -> SimpleNamespace:
+    """One run's metrics from the record, a number the run did not reach (None) as NaN."""
+
+    def number_of(value):
+        if isinstance(value, list):
+            return [number_of(v) for v in value]
+        return math.nan if value is None else value
+
+    return SimpleNamespace(**{key: number_of(v) for key, v in found["metrics"][pad][str(number)].items()})
 
 
 def _pct(value: float) -> str:
     text = format_number(value, "+.2f")
     return text if text == MISSING else f"{text} %"
-
-
-def residuals(rep: Reproduction, pad: str) -> tuple[list[float], list[float]]:
-    """The full rig's peak deformation and collision acceleration with ``pad``, % of the experiment."""
-    deformation, acceleration = [], []
-    for number in NUMBERS:
-        metrics, paper = rep.runs[pad, number].metrics, PUBLISHED[number]
-        deformation.append(
-            experiment_relative_error_pct(metrics.max_deformation_m * 1e3, paper.measured_max_deformation_mm)
-        )
-        acceleration.append(
-            experiment_relative_error_pct(metrics.collision_accel_m_s2 * 1e3, paper.measured_collision_accel_mm_s2)
-        )
-    return deformation, acceleration
-
-
-def paper_residuals() -> tuple[list[float], list[float]]:
-    """The paper's own simulation against its experiment, % of the experiment."""
-    deformation = [
-        experiment_relative_error_pct(c.simulated_max_deformation_mm, c.measured_max_deformation_mm)
-        for c in PUBLISHED.values()
-    ]
-    acceleration = [
-        experiment_relative_error_pct(c.simulated_collision_accel_mm_s2, c.measured_collision_accel_mm_s2)
-        for c in PUBLISHED.values()
-    ]
-    return deformation, acceleration
-
-
-def summary(rep: Reproduction) -> dict:
-    """Every number of the report, JSON-ready."""
-    deformation, acceleration = residuals(rep, "calibrated")
-    paper_deformation, paper_acceleration = paper_residuals()
-    ours = deformation + acceleration
-    theirs = paper_deformation + paper_acceleration
-    return {
-        "microg_version": __version__,
-        "mujoco_version": mujoco.__version__,
-        "controller": rep.controller,
-        "seed": rep.seed,
-        "duration_s": rep.duration_s,
-        "pads": {pad: {"stiffness_n_per_m": k, "damping_n_s_per_m": d} for pad, (k, d) in rep.pads.items()},
-        "calibration": rep.calibration.as_dict(),
-        "simulation_fit": rep.simulation_fit.as_dict(),
-        "metrics": {pad: {str(n): rep.runs[pad, n].metrics.as_dict() for n in NUMBERS} for pad in PADS},
-        "rig_residuals_pct": {
-            pad: dict(zip(("max_deformation", "collision_accel"), residuals(rep, pad), strict=True)) for pad in PADS
-        },
-        "paper_residuals_pct": {"max_deformation": paper_deformation, "collision_accel": paper_acceleration},
-        "calibrated_better_than_paper": [abs(a) < abs(b) for a, b in zip(ours, theirs, strict=True)],
-        "calibrated_within_paper_worst_errors": all(abs(v) <= WORST_DEFORMATION_ERROR_PCT for v in deformation)
-        and all(abs(v) <= WORST_COLLISION_ERROR_PCT for v in acceleration),
-        "eq17_compensation_error_pct": {
-            f"{reading}/{label}": {str(n): rep.eq17[reading, label, n] for n in NUMBERS}
-            for reading in READINGS
-            for label in ("pid", "ki4000")
-        },
-        "drift_fifty_gram_stage_error_pct": {"seeds": list(DRIFT_SEEDS), **rep.drift},
-        "differences": differences(rep),
-    }
 
 
 # -- Markdown -------------------------------------------------------------------------------------
@@ -122,11 +53,11 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
-def _headline(rep: Reproduction) -> str:
+def _headline(found: dict) -> str:
     rows = []
     for number in NUMBERS:
         paper = PUBLISHED[number]
-        table1, calibrated = rep.runs["paper", number].metrics, rep.runs["calibrated", number].metrics
+        table1, calibrated = _metrics(found, "paper", number), _metrics(found, "calibrated", number)
         rows.append(
             [
                 str(number),
@@ -152,11 +83,11 @@ def _headline(rep: Reproduction) -> str:
     return _table(header, rows)
 
 
-def _table3(rep: Reproduction) -> str:
+def _table3(found: dict) -> str:
     rows = []
     for number in NUMBERS:
         paper = PUBLISHED[number]
-        table1, calibrated = rep.runs["paper", number].metrics, rep.runs["calibrated", number].metrics
+        table1, calibrated = _metrics(found, "paper", number), _metrics(found, "calibrated", number)
         quantities = [
             (
                 "peak deformation (mm)",
@@ -207,11 +138,11 @@ def _table3(rep: Reproduction) -> str:
     return _table(header, rows)
 
 
-def _table4(rep: Reproduction) -> str:
+def _table4(found: dict) -> str:
     rows = []
     for number in NUMBERS:
         paper = PUBLISHED[number]
-        table1, calibrated = rep.runs["paper", number].metrics, rep.runs["calibrated", number].metrics
+        table1, calibrated = _metrics(found, "paper", number), _metrics(found, "calibrated", number)
         for i, ideal in enumerate(table1.ideal_descent_accel_m_s2):
             measured = paper.measured_descent_accel_mm_s2[i]
             rows.append(
@@ -245,10 +176,11 @@ def _table4(rep: Reproduction) -> str:
     return _table(header, rows)
 
 
-def _landing_table(rep: Reproduction, quantity: str) -> str:
+def _landing_table(found: dict, quantity: str) -> str:
     deformation = quantity == "deformation"
-    ours = {pad: residuals(rep, pad)[0 if deformation else 1] for pad in PADS}
-    theirs = paper_residuals()[0 if deformation else 1]
+    key = "max_deformation" if deformation else "collision_accel"
+    ours = {pad: found["rig_residuals_pct"][pad][key] for pad in PADS}
+    theirs = found["paper_residuals_pct"][key]
     rows = []
     for i, number in enumerate(NUMBERS):
         paper = PUBLISHED[number]
@@ -258,14 +190,14 @@ def _landing_table(rep: Reproduction, quantity: str) -> str:
                 paper.measured_max_deformation_mm,
                 (paper.printed_deformation_error_pct),
             )
-            values = {pad: rep.runs[pad, number].metrics.max_deformation_m * 1e3 for pad in PADS}
+            values = {pad: _metrics(found, pad, number).max_deformation_m * 1e3 for pad in PADS}
         else:
             sim, exp, printed = (
                 paper.simulated_collision_accel_mm_s2,
                 paper.measured_collision_accel_mm_s2,
                 (paper.printed_collision_error_pct),
             )
-            values = {pad: rep.runs[pad, number].metrics.collision_accel_m_s2 * 1e3 for pad in PADS}
+            values = {pad: _metrics(found, pad, number).collision_accel_m_s2 * 1e3 for pad in PADS}
         better = abs(ours["calibrated"][i]) < abs(theirs[i])
         rows.append(
             [
@@ -297,30 +229,25 @@ def _landing_table(rep: Reproduction, quantity: str) -> str:
     return _table(header, rows)
 
 
-def _closed_form_table(rep: Reproduction) -> str:
+def _closed_form_table(found: dict) -> str:
     rows = []
-    for pad in PADS:
-        stiffness, damping = rep.pads[pad]
-        for number in NUMBERS:
-            metrics = rep.runs[pad, number].metrics
-            mass = rep.runs[pad, number].trajectory.lander_mass_kg + CONDITIONS[number].stages_kg[-1]
-            contact = SpringDamperContact(mass, stiffness, damping)
-            speed = metrics.impact_speed_m_s
-            rows.append(
-                [
-                    PAD_LABELS[pad],
-                    str(number),
-                    format_number(speed * 1e3, ".2f"),
-                    f"{contact.half_period_s:.4f}",
-                    f"{contact.contact_time_s:.4f}",
-                    format_number(metrics.contact_time_s, ".4f"),
-                    f"{contact.restitution_half_period:.4f}",
-                    f"{contact.restitution:.4f}",
-                    format_number(metrics.restitution, ".4f"),
-                    format_number(contact.max_deformation_m(speed) * 1e3 if math.isfinite(speed) else math.nan, ".3f"),
-                    format_number(metrics.max_deformation_m * 1e3, ".3f"),
-                ]
-            )
+    for row in found["closed_form"]:
+        metrics = _metrics(found, row["pad"], row["condition"])
+        rows.append(
+            [
+                PAD_LABELS[row["pad"]],
+                str(row["condition"]),
+                format_number(row["impact_speed_m_s"], ".2f", 1e3),
+                f"{row['half_period_s']:.4f}",
+                f"{row['contact_time_s']:.4f}",
+                format_number(metrics.contact_time_s, ".4f"),
+                f"{row['restitution_half_period']:.4f}",
+                f"{row['restitution']:.4f}",
+                format_number(metrics.restitution, ".4f"),
+                format_number(row["max_deformation_m"], ".3f", 1e3),
+                format_number(metrics.max_deformation_m * 1e3, ".3f"),
+            ]
+        )
     header = [
         "pad",
         "condition",
@@ -337,90 +264,9 @@ def _closed_form_table(rep: Reproduction) -> str:
     return _table(header, rows)
 
 
-def _power_law_exponents() -> tuple[float, float, float]:
-    """Exponents n of a contact F ~ d^n implied by the experiments' ratios between conditions 3 and 1.
-
-    Undamped, F = k d^n gives d_max ~ V0^(2/(n+1)) and a_max ~ V0^(2n/(n+1)).
-    """
-    gravity = RigParams().gravity_m_s2
-    mass = RigParams().lander.mass_kg
-    speed_ratio = CONDITIONS[3].impact_speed_m_s(mass, gravity) / CONDITIONS[1].impact_speed_m_s(mass, gravity)
-    deformation_ratio = PUBLISHED[3].measured_max_deformation_mm / PUBLISHED[1].measured_max_deformation_mm
-    acceleration_ratio = PUBLISHED[3].measured_collision_accel_mm_s2 / PUBLISHED[1].measured_collision_accel_mm_s2
-    p = math.log(deformation_ratio) / math.log(speed_ratio)  # = 2 / (n + 1)
-    q = math.log(acceleration_ratio) / math.log(speed_ratio)  # = 2 n / (n + 1)
-    return speed_ratio, 2.0 / p - 1.0, q / (2.0 - q)
-
-
-def differences(rep: Reproduction) -> dict[str, Any]:
-    """Every number the "Differences from the paper" section states, computed from the runs, the
-    paper's tables and the rig's parameters (report.json's ``differences``)."""
-    t1 = {n: rep.runs["paper", n].metrics for n in NUMBERS}
-    errors = [e for n in NUMBERS for e in t1[n].compensation_error_pct]
-    excursion = [t1[n].flexible_unit_excursion_collision_m * 1e6 for n in NUMBERS]
-    deformation, acceleration = residuals(rep, "calibrated")
-    paper_deformation, paper_acceleration = paper_residuals()
-    sim_fit = rep.simulation_fit
-    (k1, d1), (kc, dc) = rep.pads["paper"], rep.pads["calibrated"]
-    speed_ratio, n_deformation, n_acceleration = _power_law_exponents()
-    params = RigParams()
-    unit = flexible_unit(params)
-    omega0_squared = unit.x_stiffness_n_per_m / params.lander.mass_kg
-    ki = load_gains(rep.controller).ki_per_s2
-    reflected = (params.servo.rotor_inertia_kg_m2 + params.screw.screw_inertia_kg_m2) * params.screw.gear_rad_per_m**2
-    stage1 = PUBLISHED[3].measured_descent_accel_mm_s2[0] / (t1[3].ideal_descent_accel_m_s2[0] * 1e3)
-    landing1 = SpringDamperContact(params.lander.mass_kg + CONDITIONS[1].stages_kg[-1], k1, d1)
-    paper_like = [rep.eq17["literal", "ki4000", n][0] for n in NUMBERS]
-    return {
-        "descent_error_pct": [min(errors), max(errors)],
-        "integral_lag_error_pct": -100 * omega0_squared / (ki + omega0_squared),  # -(k/Ki)/(M + m + k/Ki)
-        "ki_per_s2": ki,
-        "omega0_squared_per_s2": omega0_squared,
-        "paper_like_ki_per_s2": PAPER_LIKE_GAINS[1],
-        "paper_like_descent_error_pct": [min(paper_like), max(paper_like)],
-        "fifty_gram_error_pct": t1[3].compensation_error_pct[0],
-        "fifty_gram_measured_mm_s2": PUBLISHED[3].measured_descent_accel_mm_s2[0],
-        "fifty_gram_slow_pct": 100 * (1 - stage1),
-        "fifty_gram_disturbance_n": (1 - stage1) * CONDITIONS[3].loads[0].mass_kg * params.gravity_m_s2,
-        "collision_excursion_um": excursion,
-        "integral_lag_at_collision_um": [t1[n].collision_accel_m_s2 / ki * 1e6 for n in NUMBERS],
-        "speed_loop_gain_hz": params.servo.speed_loop_gain_hz,
-        "moving_mass_kg": reflected + params.screw.support_mass_kg,
-        "instant_change_um": [t1[n].x_change_after_touchdown_m[COMPARED_WINDOW] * 1e6 for n in NUMBERS],
-        "force_error_n": max(excursion) * 1e-6 * abs(unit.x_stiffness_n_per_m),
-        "deformation_fidelity_pct": max(
-            abs(t1[n].max_deformation_m / t1[n].reference_max_deformation_m - 1) * 100 for n in NUMBERS
-        ),
-        "acceleration_fidelity_pct": max(
-            abs(t1[n].collision_accel_m_s2 / t1[n].reference_collision_accel_m_s2 - 1) * 100 for n in NUMBERS
-        ),
-        "table1_pad": [k1, d1],
-        "calibrated_pad": [kc, dc],
-        "condition_1_impact_speed_mm_s": t1[1].impact_speed_m_s * 1e3,
-        "condition_1_max_deformation_mm": t1[1].max_deformation_m * 1e3,
-        "condition_1_collision_accel_mm_s2": t1[1].collision_accel_m_s2 * 1e3,
-        "simulation_fit_pad": [sim_fit.stiffness_n_per_m, sim_fit.damping_n_s_per_m],
-        "simulation_fit_residuals_pct": [*sim_fit.max_deformation_pct, *sim_fit.collision_accel_pct],
-        "simulation_fit_stiffness_ratio": sim_fit.stiffness_n_per_m / k1,
-        "calibrated_ratios": [kc / k1, dc / d1],
-        "calibrated_worst_pct": [max(abs(v) for v in deformation), max(abs(v) for v in acceleration)],
-        "calibrated_closer": [
-            abs(a) < abs(b)
-            for a, b in zip(deformation + acceleration, paper_deformation + paper_acceleration, strict=True)
-        ],
-        "impact_speed_ratio_3_to_1": speed_ratio,
-        "measured_ratios_3_to_1": [
-            PUBLISHED[3].measured_max_deformation_mm / PUBLISHED[1].measured_max_deformation_mm,
-            PUBLISHED[3].measured_collision_accel_mm_s2 / PUBLISHED[1].measured_collision_accel_mm_s2,
-        ],
-        "power_law_exponents": [n_deformation, n_acceleration],
-        "contact_shorter_than_half_period_pct": 100 * (1 - landing1.contact_time_s / landing1.half_period_s),
-    }
-
-
-def _differences(rep: Reproduction) -> str:
-    """The "Differences from the paper" section: prose around :func:`differences`."""
-    f = differences(rep)
+def _differences(found: dict) -> str:
+    """The "Differences from the paper" section: prose around the record's ``differences``."""
+    f = found["differences"]
     worst_d, worst_a = f["calibrated_worst_pct"]
     within = (
         "within" if worst_d <= WORST_DEFORMATION_ERROR_PCT and worst_a <= WORST_COLLISION_ERROR_PCT else "NOT within"
@@ -511,14 +357,16 @@ def _differences(rep: Reproduction) -> str:
 """
 
 
-def _eq17_table(rep: Reproduction) -> str:
+def _eq17_table(found: dict) -> str:
     """Compensation error of each stage under both readings of Eq. (17), two integral gains."""
-    ki, (kp4000, ki4000) = load_gains(rep.controller).ki_per_s2, PAPER_LIKE_GAINS
+    ki, (kp4000, ki4000) = found["differences"]["ki_per_s2"], found["paper_like_gains"]
+    errors = found["eq17_compensation_error_pct"]
     rows = []
     for number in NUMBERS:
         paper = PUBLISHED[number]
-        for i, ideal in enumerate(rep.runs["paper", number].metrics.ideal_descent_accel_m_s2):
-            cells = [_pct(rep.eq17[reading, label, number][i]) for label in ("pid", "ki4000") for reading in READINGS]
+        for i, ideal in enumerate(_metrics(found, "paper", number).ideal_descent_accel_m_s2):
+            runs = [errors[f"{reading}/{label}"][str(number)] for label in ("pid", "ki4000") for reading in READINGS]
+            cells = [_pct(run[i]) for run in runs]
             stage = f", stage {i + 1}" if len(paper.simulated_descent_accel_mm_s2) > 1 else ""
             paper_sim = 100 * (paper.simulated_descent_accel_mm_s2[i] / (ideal * 1e3) - 1)
             rows.append([f"{number}{stage}", *cells, _pct(paper_sim)])
@@ -533,15 +381,14 @@ def _eq17_table(rep: Reproduction) -> str:
     return _table(header, rows)
 
 
-def _balancer_table(rep: Reproduction) -> str:
+def _balancer_table(found: dict) -> str:
     """The screw's continuous torque and the 50 g stage under the balancer's drift."""
-    params = RigParams()
-    torques = [rep.runs["paper", n].metrics.servo_rms_torque_n_m for n in NUMBERS]
-    rated = params.servo.rated_torque_n_m
-    # Beside: the static torque with the balancer in parallel with the QZS, the screw carrying
-    # lander and support, (M + m_s) g / gear.
-    parallel = replace(params, balancer=replace(params.balancer, placement="support_lander"))
-    parallel_torque = flexible_unit(parallel).screw_load_n / params.screw.gear_rad_per_m
+    screw = found["balancer"]
+    torques, rated, parallel_torque = (
+        screw["servo_rms_torque_n_m"],
+        screw["rated_torque_n_m"],
+        screw["parallel_static_torque_n_m"],
+    )
     rows = [
         [
             "servo RMS torque, conditions 1-3 (N m)",
@@ -554,10 +401,12 @@ def _balancer_table(rep: Reproduction) -> str:
             f"{100 * parallel_torque / rated:.0f} %",
         ],
     ]
-    for placement, errors in rep.drift.items():
+    drift = dict(found["drift_fifty_gram_stage_error_pct"])
+    seeds = ", ".join(map(str, drift.pop("seeds")))
+    for placement, errors in drift.items():
         rows.append(
             [
-                f"50 g stage error, seeds {', '.join(map(str, DRIFT_SEEDS))}, balancer {placement.replace('_', '-')}",
+                f"50 g stage error, seeds {seeds}, balancer {placement.replace('_', '-')}",
                 ", ".join(_pct(e) for e in errors),
                 f"spread {max(errors) - min(errors):.2f} pp",
             ]
@@ -565,45 +414,47 @@ def _balancer_table(rep: Reproduction) -> str:
     return _table(["quantity", "this model", "beside"], rows)
 
 
-def render_markdown(rep: Reproduction) -> str:
-    """The report."""
-    k1, d1 = rep.pads["paper"]
-    kc, dc = rep.pads["calibrated"]
+def render_markdown(found: dict) -> str:
+    """The report, from its findings record alone (:func:`microg_env.paper.findings.findings`, or
+    report.json read back)."""
+    (k1, d1), (kc, dc) = ([pad["stiffness_n_per_m"], pad["damping_n_s_per_m"]] for pad in found["pads"].values())
     figures = "\n\n".join(f"### {title}\n\n![{title}]({name})" for name, title in FIGURES.items())
-    cal = rep.calibration
+    cal = found["calibration"]
+    _, ki4000 = found["paper_like_gains"]
+    residuals = cal["residuals"]
     return f"""# Reproduction of Jia et al., Actuators 2024, 13(9), 361
 
-Generated by `microg reproduce` (microg {__version__}, MuJoCo {mujoco.__version__}). Every number
+Generated by `microg reproduce` (microg {found["microg_version"]}, MuJoCo {found["mujoco_version"]}). Every number
 below is computed by that run from the simulations and the paper's transcribed tables
 (`microg_env/paper/tables.py`); `report.json` holds them all.
 
-Setup: the paper's three conditions (Table 2), {rep.duration_s:g} s each at 1 kHz, the `{rep.controller}`
-baseline, every imperfection on, seed {rep.seed}; once with Table 1's pad (K = {k1:g} N/m,
+Setup: the paper's three conditions (Table 2), {found["duration_s"]:g} s each at 1 kHz, the `{found["controller"]}`
+baseline, every imperfection on, seed {found["seed"]}; once with Table 1's pad (K = {k1:g} N/m,
 D = {d1:g} N s/m) and once with the pad calibrated to the experiments (K = {kc:.1f} N/m,
 D = {dc:.1f} N s/m). "Paper theoretical" is the paper's simulation, "paper actual" its experiment.
 
 ## Headline
 
-{_headline(rep)}
+{_headline(found)}
 
 ## Table 3: simulation results, the paper's beside this model's
 
-{_table3(rep)}
+{_table3(found)}
 
 The paper's Table 3 prints 130.20 mm/s² for condition 1's collision acceleration; its Table 6 lists
 131.20 for the same simulation (Table 6 below, and the calibration, use 131.20).
 
 ## Table 4: descent acceleration (mm/s²) and compensation error
 
-{_table4(rep)}
+{_table4(found)}
 
 ## Table 5: peak pad deformation
 
-{_landing_table(rep, "deformation")}
+{_landing_table(found, "deformation")}
 
 ## Table 6: collision acceleration
 
-{_landing_table(rep, "acceleration")}
+{_landing_table(found, "acceleration")}
 
 ## Eq. (17): the sign of the QZS's residual stiffness
 
@@ -612,9 +463,9 @@ Eq. (17), G_r = 35.51 x + 0.4895, grows with x = z_lander − z_support when rea
 lander then falls fast by (|k|/Ki)/(M + m − |k|/Ki); a restoring stiffness can only make it fall
 slow. Compensation error of each stage, descent over its ideal minus one, every imperfection on:
 
-{_eq17_table(rep)}
+{_eq17_table(found)}
 
-The literal reading with an integral gain of {PAPER_LIKE_GAINS[1]:g} s⁻² falls as fast as the paper's simulation; no
+The literal reading with an integral gain of {ki4000:g} s⁻² falls as fast as the paper's simulation; no
 restoring reading can. This model uses the literal reading. The constant 0.4895 N is the weight of
 the 50 g test weight (0.05 kg × 9.79 m/s²), the intercept of the measurement, not a force of the
 mechanism: any constant force is trimmed out when the rig is balanced before a test.
@@ -626,7 +477,7 @@ of the screw to suppress the heat generation"), trimmed at each test's start to 
 lander. Its gas follows the hall's temperature at up to 0.5 K/h, 1.4×10⁻⁴ K/s (a thermal lag delays
 such a ramp but does not slow it), so its force drifts by dF/F = dT/T:
 
-{_balancer_table(rep)}
+{_balancer_table(found)}
 
 Between frame and support the drive's speed loop absorbs the drift; in parallel with the QZS the
 same drift would act on the lander directly and scatter the 50 g stage from seed to seed.
@@ -634,15 +485,15 @@ same drift would act on the lander directly and scatter the 50 g stage from seed
 ## Calibration
 
 `microg calibrate` fits K and D by least squares to the six experimental values above (landing model:
-the ideal-microgravity landing from touchdown): K = {cal.stiffness_n_per_m:.1f} N/m,
-D = {cal.damping_n_s_per_m:.1f} N s/m after {cal.iterations} iterations; residuals
-{", ".join(_pct(v) for v in cal.max_deformation_pct)} (deformation) and
-{", ".join(_pct(v) for v in cal.collision_accel_pct)} (acceleration), RMS {cal.rms_residual_pct:.2f} %.
+the ideal-microgravity landing from touchdown): K = {cal["stiffness_n_per_m"]:.1f} N/m,
+D = {cal["damping_n_s_per_m"]:.1f} N s/m after {cal["iterations"]} iterations; residuals
+{", ".join(_pct(v) for v in residuals["max_deformation_pct"])} (deformation) and
+{", ".join(_pct(v) for v in residuals["collision_accel_pct"])} (acceleration), RMS {cal["rms_residual_pct"]:.2f} %.
 Tables 5 and 6 give the same pad's residuals on the full rig under the PID.
 
 ## Section 2 closed form beside the simulation (first contact)
 
-{_closed_form_table(rep)}
+{_closed_form_table(found)}
 
 ## Figures
 
@@ -654,7 +505,7 @@ drive's cogging ripple fills a solid band in which one pad's trace hides the oth
 
 ## Differences from the paper, explained
 
-{_differences(rep)}"""
+{_differences(found)}"""
 
 
 # -- output ---------------------------------------------------------------------------------------
@@ -675,8 +526,9 @@ def write(rep: Reproduction, out: Path) -> Path:
     out = Path(os.path.abspath(out))
 
     def fill(staging: Path) -> None:
-        (staging / "report.md").write_text(render_markdown(rep), encoding="utf-8")
-        (staging / "report.json").write_text(json.dumps(summary(rep), indent=2), encoding="utf-8")
+        found = findings(rep)
+        (staging / "report.md").write_text(render_markdown(found), encoding="utf-8")
+        (staging / "report.json").write_text(json.dumps(found, indent=2), encoding="utf-8")
         for name, fig in render_figures(rep).items():
             save_figure(fig, staging / name)
 

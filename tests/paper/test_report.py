@@ -1,6 +1,7 @@
 """microg reproduce: every number of the report comes from the runs and the metrics module."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -99,6 +100,7 @@ def test_interrupted_write_leaves_the_previous_report(reproduced, tmp_path, monk
     def interrupted(_):
         raise KeyboardInterrupt
 
+    monkeypatch.setattr(report, "findings", lambda rep: {})
     monkeypatch.setattr(report, "render_markdown", interrupted)
     with pytest.raises(KeyboardInterrupt):
         report.write(fake, out)
@@ -151,3 +153,18 @@ def test_the_differences_section_states_the_numbers_report_json_records(reproduc
     assert f"({found['force_error_n']:.2f} N at most)" in section
     assert f"a pad {found['simulation_fit_stiffness_ratio']:.2f} times stiffer" in section
     assert len(found["instant_change_um"]) == 3
+
+
+@pytest.mark.slow
+def test_the_report_is_rendered_from_its_findings_record_alone(reproduced):
+    """report.json holds every number report.md states: the page renders again from the file."""
+    _, summary, markdown = reproduced
+    assert report.render_markdown(summary) == markdown
+
+
+def test_the_committed_report_is_its_committed_findings_record_rendered():
+    folder = Path(__file__).resolve().parents[2] / "docs" / "reproduction"
+    found = json.loads((folder / "report.json").read_text())
+    assert report.render_markdown(found) == (folder / "report.md").read_text()
+    found["differences"]["force_error_n"] *= 2  # a number changed in the record shows on the page
+    assert report.render_markdown(found) != (folder / "report.md").read_text()
