@@ -147,10 +147,10 @@ class Campaign:
             batch_size,
         )
         if report is not None:
-            from microg_env.experiments.studies import STUDIES, STUDY_COLUMNS
+            from microg_env.experiments.studies import STUDIES
 
             validate.choice("report", report, tuple(STUDIES))
-            missing = [c for c in STUDY_COLUMNS[report] if c not in campaign.columns]
+            missing = [c for c in STUDIES[report].COLUMNS if c not in campaign.columns]
             if missing:
                 raise ValueError(f"report {shown(report)} needs {', '.join(missing)} swept or sampled")
         campaign.runs()  # every run's spec is checked now, before anything starts

@@ -91,3 +91,27 @@ def test_the_fifty_gram_study_keeps_only_the_hypothesis_that_meets_both_observat
     for name, line in rows.items():
         if name.startswith(("qzs.guide_friction_n", "sensors.ruler_resolution_m")):
             assert "| no | no | no |" in line, line
+
+
+def test_a_study_group_skips_what_a_run_did_not_reach():
+    """A page's group means leave out NaN and null (a window the run did not reach) instead of
+    printing NaN, and a run with fewer stages has no value at the missing stage."""
+    import pyarrow as pa
+
+    from microg_env.experiments.studies.groups import finite, grouped, successes, with_stage
+
+    table = pa.table(
+        {
+            "status": ["ok", "ok", "ok", "error"],
+            "controller": ["pid", "pid", "ff", "pid"],
+            "excursion": [1.0, float("nan"), None, 100.0],
+            "errors": [[1.0, 2.0], [3.0], [5.0, None], None],
+        }
+    )
+    ok = with_stage(finite(successes(table), "excursion"), "errors", 1)
+    assert ok["errors[1]"].to_pylist() == [2.0, None, None]
+    groups = grouped(ok, ["controller"], [("excursion", "mean"), ("errors[1]", "max"), ("controller", "count")])
+    assert groups == {
+        ("pid",): {"excursion_mean": 1.0, "errors[1]_max": 2.0, "controller_count": 2},
+        ("ff",): {"excursion_mean": None, "errors[1]_max": None, "controller_count": 1},
+    }
