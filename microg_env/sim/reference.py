@@ -28,10 +28,11 @@ _kept: dict[tuple, Trajectory] = {}
 
 
 def reference_key(scenario: Scenario, params: RigParams, control_period_s: float, physics_step_s: float) -> tuple:
-    """What a reference depends on: the schedule, the parts of ``params`` the lander-and-pad model
-    (:func:`~microg_env.sim.model.build_pad_test`) is built from, and the steps."""
+    """What a reference depends on: the schedule (not its duration, which only cuts it), the parts of
+    ``params`` the lander-and-pad model (:func:`~microg_env.sim.model.build_pad_test`) is built from,
+    and the steps."""
     parts = (params.lander, params.pad, params.qzs.stroke_m, params.screw, params.gravity_m_s2)
-    return (scenario, *parts, control_period_s, physics_step_s)
+    return (replace(scenario, duration_s=Scenario.duration_s), *parts, control_period_s, physics_step_s)
 
 
 def simulate_reference(

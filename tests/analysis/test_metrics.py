@@ -177,6 +177,17 @@ def test_a_reference_cut_from_a_longer_one_is_the_one_simulated_alone():
     assert np.array_equal(again.foot_height_m, alone.foot_height_m)
 
 
+def test_a_run_cut_shorter_reuses_the_reference_of_its_whole_schedule(monkeypatch):
+    """A run given a duration has a schedule of that duration; its reference is cut from the kept
+    one of the whole schedule (microg reproduce re-simulated 4 of its 10 references)."""
+    scenario = CONDITIONS[1]
+    reference_module._kept.clear()
+    whole = simulate_reference(scenario, PARAMS, 1e-3, 1e-4, 3.0)
+    monkeypatch.setattr(reference_module, "_simulate", lambda *args: pytest.fail("simulated again"))
+    cut = simulate_reference(replace(scenario, duration_s=2.0), PARAMS, 1e-3, 1e-4, 2.0)
+    assert np.array_equal(cut.foot_height_m, whole.foot_height_m[:2001])
+
+
 def test_the_reference_key_holds_every_parameter_the_reference_model_reads():
     """Parameters left out of the reference's key (the QZS but its stroke, the balancer, the drive,
     the sensors, the drift) must not change the lander-and-pad model; those in it must."""
