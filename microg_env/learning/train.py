@@ -43,7 +43,6 @@ from typing import Any
 import numpy as np
 
 from microg_env.controllers.registry import deployed_controller, make_controller
-from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.files import atomic_path, folder_lock, read_settings_text, read_yaml, write_text
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import write_policy_folder
@@ -489,13 +488,13 @@ class _Run:
             (folder / previous_buffer).unlink(missing_ok=True)  # one replay buffer is enough (and large)
 
     def validate(self, controller) -> tuple[list, float, float]:
-        """The runs, failure rate and cost of ``controller`` on the validation schedules."""
+        """The runs, failure rate and cost of ``controller`` on the validation schedules, the
+        episodes the rigs of one batch."""
         from microg_env.analysis.summary import control_cost
-        from microg_env.rollout.episode import evaluate
+        from microg_env.rollout.batch import evaluate_batch
 
-        env_kwargs = self.params.env_kwargs
         seeds = range(VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes)
-        runs, failure_rate = evaluate(lambda: _speed_env(env_kwargs), controller, seeds)
+        runs, failure_rate = evaluate_batch(_validation_settings(self.params.env_kwargs), controller, seeds)
         return runs, failure_rate, control_cost(runs)
 
     def base_cost(self) -> None:
@@ -644,14 +643,14 @@ class _NormalizedPolicy:
         return self.model.predict(observation, deterministic=deterministic)
 
 
-def _speed_env(env_kwargs: dict[str, Any]) -> MicroGravityLandingEnv:
-    """The training environment with the speed action (a controller composes the residual itself)
-    and the validation schedules: made from the class, so no id's registered defaults (a residual
-    action) come back."""
+def _validation_settings(env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The training environment's settings with the speed action (a controller composes the
+    residual itself) and the validation schedules; no id's registered defaults (a residual action)
+    come back."""
     from microg_env.scenarios import VALIDATION_SAMPLER
 
     kwargs = {k: v for k, v in env_kwargs.items() if k not in ("action_mode", "base_controller", "decision_period")}
-    return MicroGravityLandingEnv(**(kwargs | {"scenario_sampler": VALIDATION_SAMPLER}))
+    return kwargs | {"scenario_sampler": VALIDATION_SAMPLER}
 
 
 def _show(value: float | None, spec: str) -> str:

@@ -16,12 +16,14 @@ from typing import Any
 import numpy as np
 from gymnasium.utils import seeding
 
-from microg_env.controllers.base import tell_plants
+from microg_env.analysis.metrics import RunMetrics, compute_metrics
+from microg_env.controllers.base import Controller, tell_plants
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.core import TERMINATION_REASONS, LandingCore
 from microg_env.envs.settings import TaskSettings
 from microg_env.params import RigParams
 from microg_env.scenarios import Scenario
+from microg_env.sim.reference import simulate_reference
 from microg_env.trajectory import CHANNELS, Trajectory
 
 #: Rigs stepped in one batch at most: the recorded channels take 14 x 8 bytes per rig and control
@@ -33,11 +35,12 @@ PROGRESS_EVERY = 1000
 
 @dataclass(frozen=True)
 class EpisodeSpec:
-    """One episode of a batch: who drives (a controller's name and the PID gains it replaces,
-    as sorted (field, value) pairs), which schedule, from which seed."""
+    """One episode of a batch: who drives (a controller's name and the PID gains it replaces, as
+    sorted (field, value) pairs; or a controller itself), which schedule (None: the settings', or
+    one their ``scenario_sampler`` draws from the seed), from which seed."""
 
-    controller: str
-    scenario: Scenario
+    controller: str | Controller
+    scenario: Scenario | None
     seed: int
     gains: tuple[tuple[str, float], ...] = ()
 
@@ -48,8 +51,9 @@ def run_batches(
     nthread: int = 0,
     progress: Callable[[float], None] | None = None,
 ) -> Iterator[list[tuple[int, Trajectory, RigParams, str | None]]]:
-    """Run ``episodes`` on the rig of ``settings`` (``MicroGravityLandingEnv``'s keyword arguments
-    but the scenario: control period, physics step, imperfections, domain randomisation, params);
+    """Run ``episodes`` on the rig of ``settings`` (``MicroGravityLandingEnv``'s keyword arguments:
+    control period, physics step, imperfections, domain randomisation, params, and the schedule or
+    sampler of the episodes that name none);
     with a domain randomisation each rig's plant is drawn from its seed. Yield each batch's runs as
     it ends: (index in ``episodes``, trajectory, the rig it ran on, error). A controller that raises
     or gives a non-finite action stops only its own rigs, there, with the error naming it (else
@@ -78,19 +82,46 @@ def run_batch(episodes: Sequence[EpisodeSpec], *args, **kwargs) -> list[tuple[Tr
     return runs
 
 
+def evaluate_batch(
+    settings: Mapping[str, Any], controller: Controller, seeds: Sequence[int], nthread: int = 0
+) -> tuple[list[RunMetrics], float]:
+    """:func:`microg_env.rollout.episode.evaluate` in one batch: the metrics of ``controller`` on
+    each seed's episode of the environment of ``settings`` (its schedule, or one its
+    ``scenario_sampler`` draws from the seed), and the failure rate (episodes ended at a limit).
+    The rigs are the episodes the single environment runs one after another, bit for bit; a
+    controller that raises or gives a non-finite action raises here."""
+    task = TaskSettings(**settings)
+    runs = []
+    for trajectory, params, error in run_batch(
+        [EpisodeSpec(controller, None, seed) for seed in seeds], settings, nthread
+    ):
+        if error is not None:
+            raise RuntimeError(error)
+        duration = float(trajectory.time_s[-1])
+        reference = simulate_reference(
+            trajectory.scenario, params, task.control_period_s, task.physics_step_s, duration
+        )
+        runs.append(compute_metrics(trajectory, reference))
+    failures = sum(run.termination_reason is not None for run in runs)
+    return runs, failures / max(len(runs), 1)
+
+
 def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, RigParams, str | None]]:
     n = len(episodes)
-    core = LandingCore(n, TaskSettings(**settings), [e.scenario for e in episodes], batched=True, nthread=nthread)
+    scenarios = None if episodes[0].scenario is None else [e.scenario for e in episodes]
+    core = LandingCore(n, TaskSettings(**settings), scenarios, batched=True, nthread=nthread)
     rngs = [seeding.np_random(e.seed)[0] for e in episodes]
     every = np.arange(n)
     core.reset(every, rngs)
     groups = []  # (name, controller, its rigs)
     for who in dict.fromkeys((e.controller, e.gains) for e in episodes):
         rigs = np.array([i for i, e in enumerate(episodes) if (e.controller, e.gains) == who])
-        controller = make_controller(who[0], core.control_period_s, core.base_params, dict(who[1]))
+        controller = who[0]
+        if isinstance(controller, str):
+            controller = make_controller(controller, core.control_period_s, core.base_params, dict(who[1]))
         controller.reset(np.arange(rigs.size))
         tell_plants(controller, np.arange(rigs.size), [core.episodes[i].params for i in rigs])
-        groups.append((who[0], controller, rigs))
+        groups.append((who[0] if isinstance(who[0], str) else type(who[0]).__name__, controller, rigs))
     channels = CHANNELS[:-1]  # every channel but the reward comes from info
     record = np.zeros((len(CHANNELS), n, int(core.max_steps.max()) + 1))
     info = core.info(every, np.zeros(n, dtype=np.int64))

@@ -597,13 +597,14 @@ def test_a_bad_policy_folder_is_named_before_it_runs(tmp_path, change, message):
 def test_the_log_states_the_base_controllers_cost_as_the_line_to_beat(ppo_run):
     """A residual run evaluates its base controller alone once (the same validation episodes and
     cost as every evaluation), logs it, and says at the end whether its best beat it."""
-    from microg_env.learning.train import VALIDATION_SEED, _speed_env
+    from microg_env.learning.train import VALIDATION_SEED, _validation_settings
     from microg_env.rollout.episode import evaluate
 
     folder = ppo_run[0]
     entry = yaml.safe_load((folder / "config.yml").read_text())[ENV_ID]
     base = make_controller(entry["env_kwargs"]["base_controller"], 1e-3)
-    runs, _ = evaluate(lambda: _speed_env(entry["env_kwargs"]), base, [VALIDATION_SEED])
+    settings = _validation_settings(entry["env_kwargs"])  # the single env's episodes: the batch's, one by one
+    runs, _ = evaluate(lambda: MicroGravityLandingEnv(**settings), base, [VALIDATION_SEED])
     state = json.loads((folder / "checkpoints" / "latest.json").read_text())
     assert state["base_cost"] == pytest.approx(control_cost(runs), rel=1e-12)
     log = (folder / "train.log").read_text()
@@ -717,9 +718,9 @@ def test_validation_on_the_residual_task_drives_a_speed_environment():
     residual default coming back would have the controller's speed commands read as x setpoints."""
     import gymnasium as gym
 
-    from microg_env.learning.train import _speed_env
+    from microg_env.learning.train import _validation_settings
 
-    env = _speed_env(gym.spec(RESIDUAL_ID).kwargs).unwrapped
+    env = MicroGravityLandingEnv(**_validation_settings(gym.spec(RESIDUAL_ID).kwargs))
     assert (env.core.action_mode, env.core.decision_period) == ("speed", 1)
     assert env.domain_randomization == microg_env.DomainRandomization.full()
 
