@@ -37,12 +37,14 @@ PROGRESS_EVERY = 1000
 class EpisodeSpec:
     """One episode of a batch: who drives (a controller's name and the PID gains it replaces, as
     sorted (field, value) pairs; or a controller itself), which schedule (None: the settings', or
-    one their ``scenario_sampler`` draws from the seed), from which seed."""
+    one their ``scenario_sampler`` draws from the seed), from which seed, and the nominal rig a
+    model-based controller is told (None: the settings')."""
 
     controller: str | Controller
     scenario: Scenario | None
     seed: int
     gains: tuple[tuple[str, float], ...] = ()
+    params: RigParams | None = None
 
 
 def run_batches(
@@ -53,23 +55,19 @@ def run_batches(
 ) -> Iterator[list[tuple[int, Trajectory, RigParams, str | None]]]:
     """Run ``episodes`` on the rig of ``settings`` (``MicroGravityLandingEnv``'s keyword arguments:
     control period, physics step, imperfections, domain randomisation, params, and the schedule or
-    sampler of the episodes that name none);
-    with a domain randomisation each rig's plant is drawn from its seed. Yield each batch's runs as
-    it ends: (index in ``episodes``, trajectory, the rig it ran on, error). A controller that raises
-    or gives a non-finite action stops only its own rigs, there, with the error naming it (else
-    None); the others run on. A batch holds one schedule's
-    episodes (the single env's compiled model), at most :data:`MAX_BATCH` of them, stepped on
-    ``nthread`` threads (0: every core); ``progress(episodes)`` reports finished fractions of
-    episodes. A model-based controller assumes the nominal rig of ``settings``."""
+    sampler of the episodes that name none); with a domain randomisation each rig's plant is drawn
+    from its seed. Yield each batch's runs as it ends: (index in ``episodes``, trajectory, the rig
+    it ran on, error). A controller that raises or gives a non-finite action stops only its own
+    rigs, there, with the error naming it (else None); the others run on. Every episode is a rig of
+    one compiled model: their schedules may differ in their weights, start height, length and the
+    parameters an episode sets (:data:`~microg_env.sim.model.EPISODE_PARAMETERS`), else the batch
+    raises. At most :data:`MAX_BATCH` rigs are stepped at once, on ``nthread`` threads (0: every
+    core); ``progress(episodes)`` reports finished fractions of episodes."""
     settings = dict(settings or {})
-    by_schedule: dict[str, list[int]] = {}
-    for i, episode in enumerate(episodes):
-        by_schedule.setdefault(repr(episode.scenario), []).append(i)
-    for members in by_schedule.values():
-        chunks = -(-len(members) // MAX_BATCH)  # as few batches as fit, of equal size
-        for bounds in np.array_split(np.array(members), chunks):
-            chunk = [episodes[i] for i in bounds]
-            runs = _run_chunk(chunk, settings, nthread, progress)
+    chunks = -(-len(episodes) // MAX_BATCH)  # as few batches as fit, of equal size
+    for bounds in np.array_split(np.arange(len(episodes)), max(chunks, 1)):
+        if bounds.size:
+            runs = _run_chunk([episodes[i] for i in bounds], settings, nthread, progress)
             yield [(int(i), *run) for i, run in zip(bounds, runs, strict=True)]
 
 
@@ -114,11 +112,12 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
     every = np.arange(n)
     core.reset(every, rngs)
     groups = []  # (name, controller, its rigs)
-    for who in dict.fromkeys((e.controller, e.gains) for e in episodes):
-        rigs = np.array([i for i, e in enumerate(episodes) if (e.controller, e.gains) == who])
-        controller = who[0]
+    for who in dict.fromkeys((e.controller, e.gains, e.params) for e in episodes):
+        rigs = np.array([i for i, e in enumerate(episodes) if (e.controller, e.gains, e.params) == who])
+        controller, gains, nominal = who
         if isinstance(controller, str):
-            controller = make_controller(controller, core.control_period_s, core.base_params, dict(who[1]))
+            nominal = core.base_params if nominal is None else nominal
+            controller = make_controller(controller, core.control_period_s, nominal, dict(gains))
         controller.reset(np.arange(rigs.size))
         tell_plants(controller, np.arange(rigs.size), [core.episodes[i].params for i in rigs])
         groups.append((who[0] if isinstance(who[0], str) else type(who[0]).__name__, controller, rigs))

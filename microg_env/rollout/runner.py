@@ -1,10 +1,13 @@
 """The one runner: :func:`run` runs a :class:`~microg_env.rollout.spec.RunSpec`, :func:`run_many`
-runs many, as rigs of ``mujoco.batch`` batches where they share a rig (specs that differ only in
-controller, gains or seed), and both return :class:`RunResult`: the metrics and what produced them.
+runs many, as rigs of ``mujoco.batch`` batches where they share a compiled model (specs that differ
+only in controller, gains, seed, schedule and the parameters an episode sets:
+:attr:`~microg_env.rollout.spec.RunSpec.batch_key`), and both return :class:`RunResult`: the
+metrics and what produced them.
 
 :func:`run` steps the single Gymnasium environment (it can render a video as it goes);
 :func:`run_many` steps the vector core (:func:`microg_env.rollout.batch.run_batches`). A spec gives
-the same trajectory either way, bit for bit (tests/envs/test_vector.py, tests/experiments/test_experiments.py).
+the same trajectory either way, bit for bit (tests/envs/test_vector.py, tests/rollout/test_batch.py,
+tests/experiments/test_experiments.py).
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.rollout.batch import EpisodeSpec, run_batches
 from microg_env.rollout.episode import run_with_metrics
 from microg_env.rollout.spec import RETUNED_PID, RunSpec
-from microg_env.sim.reference import simulate_reference
+from microg_env.sim.reference import cut_reference, reference_key, simulate_reference
 from microg_env.trajectory import Trajectory
 
 
@@ -120,7 +123,7 @@ def run_many(
     progress: Callable[[float], None] | None = None,
     keep_trajectories: bool = False,
 ) -> Iterator[list[tuple[int, RunResult]]]:
-    """Run ``specs``, one batch per shared rig, and yield each batch's (index in ``specs``, result)
+    """Run ``specs``, one batch per compiled model, and yield each batch's (index in ``specs``, result)
     as it ends. A spec or batch that raises gives failed results (``error``), never an exception.
     ``workers``: the batch's threads and the processes of the ideal references;
     ``progress(runs)``: finished fractions of runs; ``keep_trajectories``: keep each result's
@@ -201,24 +204,26 @@ def _reference(job: tuple) -> Trajectory:
 
 
 def _run_group(group: Sequence[RunSpec], workers: int, progress, pool) -> Iterator[list[tuple[int, RunResult]]]:
-    """One rig's specs in batches, with one ideal reference per plant, schedule and length (every
-    controller on a seed meets the same plant)."""
-    episodes = [EpisodeSpec(s.controller, s.scenario_schedule(), s.seed, tuple(s.gains.items())) for s in group]
+    """One compiled model's specs in batches, each rig on its own schedule, with one ideal
+    reference per plant and schedule (every controller on a seed meets the same plant), simulated
+    as long as its longest run and cut for the others."""
+    episodes = [
+        EpisodeSpec(s.controller, s.rig_schedule(), s.seed, tuple(s.gains.items()), s.rig_params()) for s in group
+    ]
     first = group[0]
-    settings = first.env_kwargs()
-    del settings["scenario"]
-    for batch in run_batches(episodes, settings, workers, progress):
-        jobs: dict[tuple, tuple] = {}
+    for batch in run_batches(episodes, first.batch_kwargs(), workers, progress):
+        jobs: dict[tuple, list] = {}
         keys = []
         for _, trajectory, params, error in batch:
             if error is not None:  # no reference for a run its controller stopped
                 keys.append(None)
                 continue
             length = float(trajectory.time_s[-1])
-            keys.append((repr(trajectory.scenario), repr(params), length))
-            jobs.setdefault(
-                keys[-1], (trajectory.scenario, params, first.control_period_s, first.physics_step_s, length)
+            keys.append(reference_key(trajectory.scenario, params, first.control_period_s, first.physics_step_s))
+            job = jobs.setdefault(
+                keys[-1], [trajectory.scenario, params, first.control_period_s, first.physics_step_s, 0.0]
             )
+            job[-1] = max(job[-1], length)
         computed = pool.map(_reference, jobs.values()) if pool is not None else map(_reference, jobs.values())
         references = dict(zip(jobs, computed, strict=True))
         out = []
@@ -226,7 +231,7 @@ def _run_group(group: Sequence[RunSpec], workers: int, progress, pool) -> Iterat
             if error is not None:  # its controller failed: only its runs fail
                 out.append((i, RunResult(group[i], None, f"{error} at t = {trajectory.time_s[-1]:.3f} s")))
                 continue
-            reference = references[key]
+            reference = cut_reference(references[key], len(trajectory))
             metrics = compute_metrics(trajectory, reference)
             out.append((i, RunResult(group[i], metrics, None, {}, math.nan, versions(), trajectory, reference)))
         yield out

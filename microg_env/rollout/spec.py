@@ -22,11 +22,17 @@ from microg_env import validate
 from microg_env.controllers.pid import PIDGains
 from microg_env.controllers.registry import BASELINES, check_controller_name
 from microg_env.envs.settings import check_control_period
-from microg_env.imperfections import IMPERFECTION_NAMES, PRESETS, DomainRandomization, Imperfections
+from microg_env.imperfections import (
+    IMPERFECTION_NAMES,
+    PRESETS,
+    DomainRandomization,
+    Imperfections,
+    apply_imperfections,
+)
 from microg_env.interface import SENSOR_SETS
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides
 from microg_env.scenarios import LoadStep, Scenario, comparison_scenarios
-from microg_env.sim.model import check_physics_step
+from microg_env.sim.model import EPISODE_PARAMETERS, check_physics_step
 from microg_env.validate import shown
 
 #: The controller that :mod:`microg_env.experiments.tuning` re-tunes on each spec's rig and period.
@@ -41,8 +47,9 @@ RANDOMIZE = {False: None, True: DomainRandomization()} | {
 ADDED_FIELDS = {"sensor_set": "extended"}
 #: Characters of the SHA-256 content hash kept (64 bits: no collision in any campaign's lifetime).
 HASH_CHARS = 16
-#: The fields runs of one batch may differ in (the vector environment steps them together).
-PER_RIG_FIELDS = ("controller", "gains", "seed")
+#: The fields runs of one batch may differ in (the vector environment steps them together): who
+#: drives and the seed, and the schedule, whose weights, start height and length are each rig's.
+PER_RIG_FIELDS = ("controller", "gains", "seed", "scenario", "loads", "descent_height_m", "duration_s")
 
 
 @dataclass(frozen=True)
@@ -136,8 +143,15 @@ class RunSpec:
 
     @property
     def batch_key(self) -> str:
-        """Equal for specs that run as rigs of one batch: all but :data:`PER_RIG_FIELDS` equal."""
-        return json.dumps({k: v for k, v in self.as_dict().items() if k not in PER_RIG_FIELDS}, sort_keys=True)
+        """Equal for specs that run as rigs of one batch, on one compiled model: equal but in
+        :data:`PER_RIG_FIELDS` and in the parameters an episode sets
+        (:data:`~microg_env.sim.model.EPISODE_PARAMETERS`, which go with each rig's schedule)."""
+        key = {k: v for k, v in self.as_dict().items() if k not in PER_RIG_FIELDS}
+        built = apply_imperfections(self.rig_schedule().rig_params(self.model_params()), self.imperfection_flags())
+        paths = parameter_paths(built)
+        key["overrides"] = {path: paths[path] for path in sorted(paths) if path not in EPISODE_PARAMETERS}
+        key["current_state"] = built.servo.torque_filter_s > 0  # a torque filter of 0 removes a model state
+        return json.dumps(key, sort_keys=True)
 
     def replace(self, **changes: Any) -> RunSpec:
         return dataclasses.replace(self, **changes)
@@ -166,9 +180,22 @@ class RunSpec:
             changes["duration_s"] = self.duration_s
         return dataclasses.replace(scenario, **changes) if changes else scenario
 
+    def rig_schedule(self) -> Scenario:
+        """The schedule as one rig of a batch runs it: :meth:`scenario_schedule` carrying this spec's
+        overrides of the parameters an episode sets (the schedule's own take precedence, as in
+        :meth:`env_kwargs`' environment)."""
+        schedule = self.scenario_schedule()
+        mine = {path: value for path, value in self.overrides.items() if path in EPISODE_PARAMETERS}
+        return dataclasses.replace(schedule, overrides=mine | dict(schedule.overrides)) if mine else schedule
+
     def rig_params(self) -> RigParams:
         """The nominal rig: the paper's with this spec's overrides."""
         return with_overrides(RigParams(), self.overrides)
+
+    def model_params(self) -> RigParams:
+        """The rig of a batch's compiled model: the paper's with this spec's overrides but those of
+        the parameters an episode sets (:meth:`rig_schedule` carries them)."""
+        return with_overrides(RigParams(), {p: v for p, v in self.overrides.items() if p not in EPISODE_PARAMETERS})
 
     def imperfection_flags(self) -> Imperfections:
         return Imperfections(**self.imperfections)
@@ -184,6 +211,13 @@ class RunSpec:
             "sensor_set": self.sensor_set,
             "params": self.rig_params(),
         }
+
+    def batch_kwargs(self) -> dict[str, Any]:
+        """The batch core's settings for this spec's batch: :meth:`env_kwargs` with the
+        :meth:`model_params` and no schedule (each rig has its :meth:`rig_schedule`)."""
+        kwargs = self.env_kwargs() | {"params": self.model_params()}
+        del kwargs["scenario"]
+        return kwargs
 
 
 def _overrides(values: object) -> dict[str, Any]:

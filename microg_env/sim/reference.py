@@ -55,10 +55,10 @@ def simulate_reference(
         _kept[key] = kept
         while len(_kept) > KEPT:
             del _kept[next(iter(_kept))]
-    return _prefix(kept, steps + 1)
+    return cut_reference(kept, steps + 1)
 
 
-def _prefix(trajectory: Trajectory, length: int) -> Trajectory:
+def cut_reference(trajectory: Trajectory, length: int) -> Trajectory:
     """The first ``length`` samples of ``trajectory``, as new arrays."""
     arrays = {name: getattr(trajectory, name)[:length].copy() for name in CHANNELS}
     return replace(trajectory, **arrays)
