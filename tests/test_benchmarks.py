@@ -16,7 +16,7 @@ SMOKE_ARGS = {
     "bench_batch": ["--sizes", "2", "--periods", "20", "--repeats", "1"],
     "bench_compare": ["--seeds", "1", "--scenarios", "condition-1", "--duration", "0.5", "--timesteps", "512"],
     "bench_reproduce": ["--repeats", "1", "--duration", "0.5"],
-    "convergence": ["--steps-us", "100", "25", "--duration", "0.2"],
+    "convergence": ["--steps-us", "100", "25", "--duration", "0.2", "--controllers", "pid,residual-ppo"],
 }
 
 
