@@ -4,7 +4,7 @@ tuned and selected by."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +34,11 @@ def finite_mean(values: Iterable[float]) -> float:
     """The mean of the finite values (a stage or window a run did not reach is NaN); NaN if none."""
     finite = [v for v in values if math.isfinite(v)]
     return float(np.mean(finite)) if finite else math.nan
+
+
+def failure_rate(runs: Sequence[RunMetrics]) -> float:
+    """The share of ``runs`` that ended at a limit (0 for none)."""
+    return sum(run.termination_reason is not None for run in runs) / max(len(runs), 1)
 
 
 def control_cost(runs: Iterable[RunMetrics]) -> float:

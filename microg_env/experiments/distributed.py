@@ -83,7 +83,7 @@ def _run_task(specs: list[dict], columns: list[dict]) -> list[dict]:
 
 
 def tasks_of(runs: Sequence[Run], batch_size: int) -> list[list[Run]]:
-    """``runs`` cut into tasks: specs sharing a rig, at most ``batch_size`` each, equal sizes."""
+    """``runs`` cut into tasks: specs sharing a compiled model, at most ``batch_size`` each, equal sizes."""
     groups: dict[str, list[Run]] = {}
     for run in runs:
         groups.setdefault(run.spec.batch_key, []).append(run)

@@ -67,7 +67,7 @@ def omega0_squared(spec: RunSpec) -> float:
 
 def score(candidates: Sequence[PIDGains], schedules: Sequence[RunSpec], workers: int = 1) -> list[Candidate]:
     """Each candidate's cost over ``schedules`` (their gains and seed replaced) and whether it stays
-    stable with every gain doubled: candidates and doubles run together, one batch per schedule."""
+    stable with every gain doubled: candidates and doubles run together, as batches of ``run_all``."""
     doubled = [replace(g, kp_per_s=2 * g.kp_per_s, ki_per_s2=2 * g.ki_per_s2, kd=2 * g.kd) for g in candidates]
     every = list(candidates) + doubled
     specs = [schedule.replace(seed=TUNING_SEED, gains=asdict(gains)) for gains in every for schedule in schedules]
@@ -125,12 +125,12 @@ def run_with_retuning(
             gains.append({})
             members.append(i)
             continue
-        if spec.batch_key not in tuned:
+        if spec.plant_key not in tuned:
             try:
-                tuned[spec.batch_key] = retune(spec).gains_dict()
+                tuned[spec.plant_key] = retune(spec).gains_dict()
             except Exception as error:  # its runs fail; the others run on
-                tuned[spec.batch_key] = error
-        chosen = tuned[spec.batch_key]
+                tuned[spec.plant_key] = error
+        chosen = tuned[spec.plant_key]
         if isinstance(chosen, BaseException):
             if progress is not None:
                 progress(1)

@@ -272,7 +272,7 @@ def _differences(found: dict) -> str:
         "within" if worst_d <= WORST_DEFORMATION_ERROR_PCT and worst_a <= WORST_COLLISION_ERROR_PCT else "NOT within"
     )
     labels = [f"condition {n}'s {q}" for q in ("deformation", "acceleration") for n in NUMBERS]
-    better = f["calibrated_closer"]
+    better = found["calibrated_better_than_paper"]
     missed = [label for label, b in zip(labels, better, strict=True) if not b]
     not_closer = "It is closer on every value." if not missed else f"It is not closer on {', '.join(missed)}."
     (k1, d1), (kc, dc) = f["table1_pad"], f["calibrated_pad"]

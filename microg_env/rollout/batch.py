@@ -17,6 +17,7 @@ import numpy as np
 from gymnasium.utils import seeding
 
 from microg_env.analysis.metrics import RunMetrics, compute_metrics
+from microg_env.analysis.summary import failure_rate
 from microg_env.controllers.base import Controller, tell_plants
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.core import TERMINATION_REASONS, LandingCore
@@ -38,7 +39,8 @@ class EpisodeSpec:
     """One episode of a batch: who drives (a controller's name and the PID gains it replaces, as
     sorted (field, value) pairs; or a controller itself), which schedule (None: the settings', or
     one their ``scenario_sampler`` draws from the seed), from which seed, and the nominal rig a
-    model-based controller is told (None: the settings')."""
+    model-based controller named by ``controller`` is made for (None: the settings'; a controller
+    given itself already has its own)."""
 
     controller: str | Controller
     scenario: Scenario | None
@@ -64,6 +66,8 @@ def run_batches(
     raises. At most :data:`MAX_BATCH` rigs are stepped at once, on ``nthread`` threads (0: every
     core); ``progress(episodes)`` reports finished fractions of episodes."""
     settings = dict(settings or {})
+    if len({episode.scenario is None for episode in episodes}) > 1:
+        raise ValueError("episodes name a schedule each or none does (the settings' schedule or sampler), not some")
     chunks = -(-len(episodes) // MAX_BATCH)  # as few batches as fit, of equal size
     for bounds in np.array_split(np.arange(len(episodes)), max(chunks, 1)):
         if bounds.size:
@@ -87,7 +91,8 @@ def evaluate_batch(
     each seed's episode of the environment of ``settings`` (its schedule, or one its
     ``scenario_sampler`` draws from the seed), and the failure rate (episodes ended at a limit).
     The rigs are the episodes the single environment runs one after another, bit for bit; a
-    controller that raises or gives a non-finite action raises here."""
+    controller that raises or gives a non-finite action raises RuntimeError here, with its error
+    (type and message) in the message."""
     task = TaskSettings(**settings)
     runs = []
     for trajectory, params, error in run_batch(
@@ -100,8 +105,7 @@ def evaluate_batch(
             trajectory.scenario, params, task.control_period_s, task.physics_step_s, duration
         )
         runs.append(compute_metrics(trajectory, reference))
-    failures = sum(run.termination_reason is not None for run in runs)
-    return runs, failures / max(len(runs), 1)
+    return runs, failure_rate(runs)
 
 
 def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, RigParams, str | None]]:

@@ -14,6 +14,7 @@ import numpy as np
 
 from microg_env import validate
 from microg_env.analysis.metrics import RunMetrics, compute_metrics
+from microg_env.analysis.summary import failure_rate
 from microg_env.controllers.base import Controller, tell_plants
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.scenarios import MAX_DURATION_S
@@ -110,5 +111,4 @@ def evaluate(
         runs = [run_with_metrics(env, controller, seed)[2] for seed in seeds]
     finally:
         env.close()
-    failures = sum(run.termination_reason is not None for run in runs)
-    return runs, failures / max(len(runs), 1)
+    return runs, failure_rate(runs)

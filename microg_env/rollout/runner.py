@@ -34,6 +34,7 @@ from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.rollout.batch import EpisodeSpec, run_batches
 from microg_env.rollout.episode import run_with_metrics
 from microg_env.rollout.spec import RETUNED_PID, RunSpec
+from microg_env.scenarios import Scenario
 from microg_env.sim.reference import cut_reference, reference_key, simulate_reference
 from microg_env.trajectory import Trajectory
 
@@ -203,6 +204,12 @@ def _reference(job: tuple) -> Trajectory:
     return simulate_reference(scenario, params, control_period_s, physics_step_s, duration_s)
 
 
+def _as_run_alone(scenario: Scenario, spec: RunSpec) -> Scenario:
+    """A rig's schedule (its weights perhaps drawn) with the overrides of ``spec``'s own schedule
+    only, as ``run(spec)`` records it (:meth:`RunSpec.rig_schedule` added the spec's)."""
+    return replace(scenario, overrides=dict(spec.scenario_schedule().overrides))
+
+
 def _run_group(group: Sequence[RunSpec], workers: int, progress, pool) -> Iterator[list[tuple[int, RunResult]]]:
     """One compiled model's specs in batches, each rig on its own schedule, with one ideal
     reference per plant and schedule (every controller on a seed meets the same plant), simulated
@@ -231,7 +238,9 @@ def _run_group(group: Sequence[RunSpec], workers: int, progress, pool) -> Iterat
             if error is not None:  # its controller failed: only its runs fail
                 out.append((i, RunResult(group[i], None, f"{error} at t = {trajectory.time_s[-1]:.3f} s")))
                 continue
-            reference = cut_reference(references[key], len(trajectory))
+            # the schedule as the single environment records it: without the spec's overrides
+            trajectory = replace(trajectory, scenario=_as_run_alone(trajectory.scenario, group[i]))
+            reference = cut_reference(references[key], len(trajectory), trajectory.scenario)
             metrics = compute_metrics(trajectory, reference)
             out.append((i, RunResult(group[i], metrics, None, {}, math.nan, versions(), trajectory, reference)))
         yield out

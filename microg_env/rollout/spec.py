@@ -32,7 +32,7 @@ from microg_env.imperfections import (
 from microg_env.interface import SENSOR_SETS
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides
 from microg_env.scenarios import LoadStep, Scenario, comparison_scenarios
-from microg_env.sim.model import EPISODE_PARAMETERS, check_physics_step
+from microg_env.sim.model import EPISODE_PARAMETERS, check_physics_step, model_states
 from microg_env.validate import shown
 
 #: The controller that :mod:`microg_env.experiments.tuning` re-tunes on each spec's rig and period.
@@ -150,8 +150,16 @@ class RunSpec:
         built = apply_imperfections(self.rig_schedule().rig_params(self.model_params()), self.imperfection_flags())
         paths = parameter_paths(built)
         key["overrides"] = {path: paths[path] for path in sorted(paths) if path not in EPISODE_PARAMETERS}
-        key["current_state"] = built.servo.torque_filter_s > 0  # a torque filter of 0 removes a model state
+        key["model_states"] = model_states(built)  # an episode parameter's 0 removes a model state
         return json.dumps(key, sort_keys=True)
+
+    @property
+    def plant_key(self) -> str:
+        """Equal for specs that differ only in who drives and the seed: one rig, schedule, period
+        and randomisation (what ``pid-retuned`` is tuned on)."""
+        return json.dumps(
+            {k: v for k, v in self.as_dict().items() if k not in ("controller", "gains", "seed")}, sort_keys=True
+        )
 
     def replace(self, **changes: Any) -> RunSpec:
         return dataclasses.replace(self, **changes)

@@ -297,11 +297,12 @@ class Rig:
         return writes
 
     def check_episode_params(self, params: RigParams) -> None:
-        """Raise ValueError if ``params`` differs from the built rig's beyond :data:`EPISODE_PARAMETERS`."""
+        """Raise ValueError if ``params`` differs from the built rig's beyond :data:`EPISODE_PARAMETERS`,
+        or sets one of them to or from the 0 that removes a model state (:func:`model_states`)."""
         built, given = parameter_paths(self.params), parameter_paths(params)
         changed = sorted(path for path in built if built[path] != given[path] and path not in EPISODE_PARAMETERS)
-        if (self.params.servo.torque_filter_s == 0) != (params.servo.torque_filter_s == 0):
-            changed.append("servo.torque_filter_s (to or from 0, which adds or removes the current state)")
+        states = zip(MODEL_STATES, model_states(self.params), model_states(params), strict=True)
+        changed += [f"{path} (to or from 0, which adds or removes a model state)" for path, a, b in states if a != b]
         if changed:
             raise ValueError(f"parameters {', '.join(changed)} differ from the built rig's: build a new rig")
 
@@ -374,6 +375,17 @@ class Rig:
             ctrl[0], ctrl[1] = end, speed_ref_rad_s
         mujoco.mj_step(model, data, nstep=steps)
         return end
+
+
+#: The episode parameters whose 0 removes a state from the compiled model, in the order of
+#: :func:`model_states`: the drive's current (torque filter), the guide's and the motor's bristles.
+MODEL_STATES = ("servo.torque_filter_s", "qzs.guide_friction_n", "servo.bristle_stiffness_n_m_per_rad")
+
+
+def model_states(params: RigParams) -> tuple[bool, ...]:
+    """Which of the :data:`MODEL_STATES` the model of ``params`` compiles (a parameter above 0)."""
+    paths = parameter_paths(params)
+    return tuple(paths[path] > 0 for path in MODEL_STATES)
 
 
 def _load_geometry(mass_kg: float) -> tuple[float, float]:

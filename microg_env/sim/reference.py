@@ -55,13 +55,14 @@ def simulate_reference(
         _kept[key] = kept
         while len(_kept) > KEPT:
             del _kept[next(iter(_kept))]
-    return cut_reference(kept, steps + 1)
+    return cut_reference(kept, steps + 1, scenario)
 
 
-def cut_reference(trajectory: Trajectory, length: int) -> Trajectory:
-    """The first ``length`` samples of ``trajectory``, as new arrays."""
+def cut_reference(trajectory: Trajectory, length: int, scenario: Scenario) -> Trajectory:
+    """The first ``length`` samples of ``trajectory``, as new arrays, the landing of ``scenario``
+    (the schedule it was simulated for, perhaps of another length)."""
     arrays = {name: getattr(trajectory, name)[:length].copy() for name in CHANNELS}
-    return replace(trajectory, **arrays)
+    return replace(trajectory, scenario=scenario, **arrays)
 
 
 def _simulate(

@@ -332,6 +332,35 @@ def test_pid_retuned_picks_the_best_robust_candidate_on_the_specs_own_rig(monkey
     assert result.metrics.as_dict() == by_hand.metrics.as_dict()
 
 
+def test_pid_retuned_is_tuned_once_per_rig_and_schedule_not_per_batch(monkeypatch):
+    """Specs of one compiled model but other schedules or landers share a batch, not their tuning:
+    the tuning is keyed by what it runs on (it was keyed by the batch, so condition 3 ran with the
+    gains tuned on condition 1)."""
+    from microg_env.experiments import tuning
+
+    tuned = []
+
+    class Tuned:
+        def __init__(self, spec):
+            tuned.append(spec)
+            self.ki = 100.0 * len(tuned)
+
+        def gains_dict(self):
+            return {"kp_per_s": 50.0, "ki_per_s2": self.ki, "kd": 0.0}
+
+    monkeypatch.setattr(tuning, "retune", Tuned)
+    specs = [
+        RunSpec("condition-1", "pid-retuned", 1, duration_s=0.2),
+        RunSpec("condition-3", "pid-retuned", 1, duration_s=0.2),
+        RunSpec("condition-1", "pid-retuned", 2, duration_s=0.2),
+        RunSpec("condition-1", "pid-retuned", 1, {"lander.mass_kg": 600.0}, duration_s=0.2),
+    ]
+    assert len({spec.batch_key for spec in specs}) == 1
+    results = dict(item for batch in tuning.run_with_retuning(specs) for item in batch)
+    assert [spec.scenario for spec in tuned] == ["condition-1", "condition-3", "condition-1"]
+    assert [results[i].tuned_gains["ki_per_s2"] for i in range(4)] == [100.0, 200.0, 100.0, 300.0]
+
+
 def test_a_batch_that_fails_midway_fails_only_its_unfinished_runs(monkeypatch):
     from microg_env.rollout import batch
 
