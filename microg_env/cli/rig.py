@@ -315,7 +315,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     duration = 30.0 if args.duration is None else args.duration
     with progress_bar("reproduce", args.quiet, reproduction.total_steps(duration)) as bar:
         runs = reproduction.compute(duration_s=duration, seed=args.seed, progress=bar.update, workers=args.workers)
-    report.write(runs, out)
+    report.write(runs, out, args.workers)
     print(f"wrote {out / 'report.md'}")
     return 0
 

@@ -3,8 +3,12 @@ Table 1's pad solid and the calibrated pad dashed."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
 from microg_env.analysis.metrics import contacts
-from microg_env.analysis.plots import envelope, figure_class
+from microg_env.analysis.plots import envelope, figure_class, save_figure
 from microg_env.paper.reproduction import NUMBERS, Reproduction
 from microg_env.rollout.runner import RunResult
 from microg_env.trajectory import Trajectory
@@ -24,11 +28,12 @@ def _first_contact(trajectory: Trajectory) -> slice:
     return slice(found[0].start, found[0].end) if found else slice(0, 0)
 
 
-def render_figures(rep: Reproduction) -> dict[str, object]:
-    """The equivalents of the paper's Figures 3-7, three conditions each."""
+def render_figures(rep: Reproduction, names: Iterable[str] = tuple(FIGURES)) -> dict[str, object]:
+    """The equivalents of the paper's Figures 3-7 (those of ``names``), three conditions each."""
     figure = figure_class()
     made = {}
-    for name, title in FIGURES.items():
+    for name in names:
+        title = FIGURES[name]
         fig = figure(figsize=(8, 8), layout="constrained")
         axes = fig.subplots(3, 1)
         for ax, number in zip(axes, NUMBERS, strict=True):
@@ -44,6 +49,26 @@ def render_figures(rep: Reproduction) -> dict[str, object]:
         fig.suptitle(title)
         made[name] = fig
     return made
+
+
+def save_figures(rep: Reproduction, folder: Path, workers: int = 1) -> None:
+    """Render and save every figure into ``folder``, shared between ``workers`` processes (this one
+    and ``workers - 1`` more; drawing and PNG encoding take about a second in all)."""
+    workers = max(1, min(workers, len(FIGURES)))
+    shares = [tuple(FIGURES)[i::workers] for i in range(workers)]
+    if workers == 1:
+        _save(rep, folder, shares[0])
+        return
+    with ProcessPoolExecutor(max_workers=workers - 1) as pool:
+        others = [pool.submit(_save, rep, folder, share) for share in shares[1:]]
+        _save(rep, folder, shares[0])
+        for other in others:
+            other.result()
+
+
+def _save(rep: Reproduction, folder: Path, names: tuple[str, ...]) -> None:
+    for name, fig in render_figures(rep, names).items():
+        save_figure(fig, Path(folder) / name)
 
 
 def _draw(name: str, ax, run: RunResult, style: str, label: str) -> None:

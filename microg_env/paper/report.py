@@ -15,9 +15,8 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from microg_env.analysis.formatting import MISSING, format_number
-from microg_env.analysis.plots import save_figure
 from microg_env.files import check_output_folder, replace_folder
-from microg_env.paper.figures import FIGURES, PAD_LABELS, render_figures
+from microg_env.paper.figures import FIGURES, PAD_LABELS, save_figures
 from microg_env.paper.findings import findings
 from microg_env.paper.reproduction import NUMBERS, PADS, READINGS, Reproduction
 from microg_env.paper.tables import (
@@ -520,8 +519,9 @@ def check_output(out: Path) -> None:
     check_output_folder(out, "--out", REPORT_FILES, "a report")
 
 
-def write(rep: Reproduction, out: Path) -> Path:
-    """Write report.md, report.json and the figures into ``out``, replacing it only when complete."""
+def write(rep: Reproduction, out: Path, workers: int = 1) -> Path:
+    """Write report.md, report.json and the figures into ``out``, replacing it only when complete;
+    the figures drawn on ``workers`` processes."""
     check_output(out)
     out = Path(os.path.abspath(out))
 
@@ -529,7 +529,6 @@ def write(rep: Reproduction, out: Path) -> Path:
         found = findings(rep)
         (staging / "report.md").write_text(render_markdown(found), encoding="utf-8")
         (staging / "report.json").write_text(json.dumps(found, indent=2), encoding="utf-8")
-        for name, fig in render_figures(rep).items():
-            save_figure(fig, staging / name)
+        save_figures(rep, staging, workers)
 
     return replace_folder(out, fill)

@@ -31,11 +31,12 @@ from microg_env import validate
 from microg_env.analysis.metrics import RunMetrics, compute_metrics
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.imperfections import apply_imperfections
 from microg_env.rollout.batch import EpisodeSpec, run_batches
 from microg_env.rollout.episode import run_with_metrics
 from microg_env.rollout.spec import RETUNED_PID, RunSpec
 from microg_env.scenarios import Scenario
-from microg_env.sim.reference import cut_reference, reference_key, simulate_reference
+from microg_env.sim.reference import cut_reference, keep_reference, reference_key, simulate_reference
 from microg_env.trajectory import Trajectory
 
 
@@ -97,7 +98,9 @@ def run_each(
 ) -> list[RunResult]:
     """:func:`run` of each of ``specs`` (with its trajectories), in order; independent runs on
     ``workers`` processes at once (default: every core; 1: here, one after another), the longest
-    first. ``progress(steps)``: a run's control steps as it ends. Raises on the first bad spec."""
+    first, after each ideal reference they need, simulated once (:func:`_shared_references`; a
+    process used to simulate every reference its runs met). ``progress(steps)``: a run's control
+    steps as it ends. Raises on the first bad spec."""
     workers = min(workers or os.cpu_count() or 1, len(specs))
     order = sorted(range(len(specs)), key=lambda i: -(specs[i].duration_s or math.inf))  # None: the whole schedule
     results: list[RunResult | None] = [None] * len(specs)
@@ -107,15 +110,52 @@ def run_each(
         if progress is not None:
             progress(len(result.trajectory) - 1)
 
-    if workers <= 1:
+    if workers <= 1:  # one process: its kept references are shared already
         for i in order:
             done(i, run(specs[i]))
         return results
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(run, specs[i]): i for i in order}
+        planned = [_planned_reference(spec) for spec in specs]
+        references = _shared_references(planned, pool)
+        futures = {}
+        for i in order:
+            key = None if planned[i] is None else planned[i][0]
+            futures[pool.submit(_run_kept, specs[i], key, references.get(key))] = i
         for future in as_completed(futures):
             done(futures[future], future.result())
     return results
+
+
+def _planned_reference(spec: RunSpec) -> tuple[tuple, list] | None:
+    """The :func:`~microg_env.sim.reference.reference_key` of ``spec``'s reference and the
+    :func:`_reference` job that simulates all of it, when known before it runs (None for a spec
+    whose plant or weights are drawn at its reset)."""
+    if spec.randomize:
+        return None
+    scenario = spec.scenario_schedule()
+    params = apply_imperfections(scenario.rig_params(spec.rig_params()), spec.imperfection_flags())
+    job = [scenario, params, spec.control_period_s, spec.physics_step_s, scenario.duration_s]
+    return reference_key(*job[:4]), job
+
+
+def _shared_references(planned: Sequence[tuple[tuple, list] | None], pool) -> dict[tuple, Trajectory]:
+    """The reference of each key in ``planned``, simulated once on ``pool`` as long as the longest
+    run that needs it (before the runs: each then only cuts its own from it)."""
+    jobs: dict[tuple, list] = {}
+    for plan in planned:
+        if plan is not None:
+            key, job = plan
+            kept = jobs.setdefault(key, list(job))
+            kept[-1] = max(kept[-1], job[-1])
+    return dict(zip(jobs, pool.map(_reference, jobs.values()), strict=True))
+
+
+def _run_kept(spec: RunSpec, key: tuple | None, reference: Trajectory | None) -> RunResult:
+    """:func:`run` in a pool's process, ``reference`` (simulated in another) kept under ``key``
+    for it to cut (a run whose reference turns out to differ simulates its own)."""
+    if reference is not None:
+        keep_reference(key, reference)
+    return run(spec)
 
 
 def run_many(

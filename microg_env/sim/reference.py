@@ -51,11 +51,17 @@ def simulate_reference(
     kept = _kept.get(key)
     if kept is None or len(kept) < steps + 1:
         kept = _simulate(scenario, params, control_period_s, physics_step_s, steps)
-        _kept.pop(key, None)
-        _kept[key] = kept
-        while len(_kept) > KEPT:
-            del _kept[next(iter(_kept))]
+        keep_reference(key, kept)
     return cut_reference(kept, steps + 1, scenario)
+
+
+def keep_reference(key: tuple, trajectory: Trajectory) -> None:
+    """Keep ``trajectory`` as the reference of ``key`` (:func:`reference_key`) for
+    :func:`simulate_reference` to cut: one simulated here, or in another process."""
+    _kept.pop(key, None)
+    _kept[key] = trajectory
+    while len(_kept) > KEPT:
+        del _kept[next(iter(_kept))]
 
 
 def cut_reference(trajectory: Trajectory, length: int, scenario: Scenario) -> Trajectory:

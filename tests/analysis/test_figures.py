@@ -101,6 +101,19 @@ def test_figure_3_draws_both_pads_as_bands_that_do_not_hide_each_other():
     ]
 
 
+@pytest.mark.slow
+def test_figures_drawn_on_two_processes_are_those_drawn_on_one(tmp_path):
+    from microg_env.paper import figures, reproduction
+
+    rep = reproduction.compute(duration_s=0.5, workers=2)
+    (tmp_path / "one").mkdir()
+    (tmp_path / "two").mkdir()
+    figures.save_figures(rep, tmp_path / "one", workers=1)
+    figures.save_figures(rep, tmp_path / "two", workers=2)
+    for name in figures.FIGURES:
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes()
+
+
 def test_video_frames_carry_an_inset_of_x_and_the_pad_force():
     """The inset plots the last INSET_S of x and the pad force, each in its colour, in a box at the
     frame's bottom right; what is older is left out."""

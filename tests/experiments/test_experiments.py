@@ -623,6 +623,32 @@ def test_run_each_on_two_processes_gives_the_runs_of_run_in_order():
         assert np.array_equal(result.reference.foot_height_m, alone.reference.foot_height_m)
 
 
+@pytest.mark.slow
+def test_run_each_simulates_a_reference_its_runs_share_once(tmp_path, monkeypatch):
+    """Runs of one plant and schedule on two processes: each process used to simulate the reference
+    itself (two or more times in all); now it is simulated once, before them, and each run cuts
+    its own from it, bit for bit as run alone."""
+    from microg_env.sim import reference
+
+    calls = tmp_path / "calls"
+    simulate = reference._simulate
+
+    def counted(*args):
+        with calls.open("a") as log:  # the pool's processes are forked: each appends its own line
+            log.write(f"{args[-1]}\n")
+        return simulate(*args)
+
+    monkeypatch.setattr(reference, "_simulate", counted)
+    specs = [RunSpec("condition-2", "pid", seed, duration_s=0.3 + 0.1 * seed) for seed in range(4)]
+    parallel = run_each(specs, workers=2)
+    assert calls.read_text().split() == ["600"]  # the longest run's 0.6 s at 1 kHz
+    calls.unlink()
+    for spec, result in zip(specs, parallel, strict=True):
+        alone = run(spec)
+        assert repr(result.metrics) == repr(alone.metrics)
+        assert np.array_equal(result.reference.foot_height_m, alone.reference.foot_height_m)
+
+
 def test_a_controller_giving_nan_fails_only_its_own_runs(tmp_path, monkeypatch):
     """A policy whose output is NaN used to send the NaN to MuJoCo and fail every run of its batch,
     the PID's included: now only its own rigs stop, with an error naming it, and the PID's runs are
