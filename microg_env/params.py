@@ -90,6 +90,7 @@ RANGES: dict[str, tuple[float, float, str]] = {
     "ScrewStageParams.support_mass_kg": (0.1, 1e4, "kg"),
     "ScrewStageParams.screw_inertia_kg_m2": (1e-6, 10.0, "kg m^2"),
     "ScrewStageParams.viscous_n_s_per_m": (0.0, 1e6, "N s/m"),
+    "ScrewStageParams.transmission_damping_ratio": (0.0, 1.0, ""),
     "ServoParams.rated_torque_n_m": (0.01, 1e4, "N m"),
     "ServoParams.rated_speed_rpm": (1.0, 1e5, "rpm"),
     "ServoParams.rated_power_w": (1.0, 1e7, "W"),
@@ -268,9 +269,10 @@ class BalancerParams:
 class ScrewStageParams:
     """Stroke-amplification mechanism: belt, ball screw and floating support (Section 4.1).
 
-    Assumption: belt and screw are rigid (the motor angle sets the support's position exactly through
-    ``gear_rad_per_m``). The paper gives no stiffness for either; a transmission compliance is not
-    modelled yet, so its effect on the excursions is not measured here.
+    The paper gives no stiffness for the belt or the screw. Assumption: they are rigid by default
+    (the motor angle sets the support's position exactly through ``gear_rad_per_m``);
+    ``transmission_stiffness_n_per_m`` makes them one spring between the motor side (rotor, screw
+    and pulleys) and the support, so their effect can be measured (docs/model.md, "Transmission").
     """
 
     #: Derived: 1250 mm/s maximum vertical speed at the motor's 1500 rpm through a 1:1 belt.
@@ -286,9 +288,20 @@ class ScrewStageParams:
     screw_inertia_kg_m2: float = 0.0025
     #: Assumption: screw, nut and support-guide viscous loss, in N s/m at the support.
     viscous_n_s_per_m: float = 200.0
+    #: The belt and the screw in series as one axial spring at the support, N/m; ``math.inf``
+    #: (the default): rigid. Estimate: 1.0e8, from a 40 mm screw's shaft (E A / L with a 34 mm
+    #: root over 1 m: 1.9e8), its preloaded nut (~1.5e9) and the 1:1 belt's two spans
+    #: (~3e6 N/m each at a 50 mm pulley radius, through the gear: 2.4e8) in series.
+    transmission_stiffness_n_per_m: float = math.inf
+    #: Assumption: the transmission's damping ratio (steel screw and belt: 0.01-0.05).
+    transmission_damping_ratio: float = 0.02
 
     def __post_init__(self) -> None:
         _check_ranges(self)
+        if self.transmission_stiffness_n_per_m != math.inf:  # inf: rigid
+            validate.between(
+                "ScrewStageParams.transmission_stiffness_n_per_m", self.transmission_stiffness_n_per_m, 1e5, 1e12, "N/m"
+            )
         if self.travel_below_touchdown_m >= self.stroke_m:
             raise ValueError(
                 f"ScrewStageParams.travel_below_touchdown_m {self.travel_below_touchdown_m!r} "

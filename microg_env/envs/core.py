@@ -400,7 +400,7 @@ class LandingCore:
         low, high = self._screw_limits
         while True:
             result = period.observe(
-                ids, physics.qpos, physics.sensordata, rig.screw_qpos, rig.qzs_qpos, self._accel_adr,
+                ids, physics.qpos, physics.sensordata, rig.screw_qpos, rig.qzs_qpos, rig.motor_qpos, self._accel_adr,
                 self._force_adr, self.gravity, sensors.noisy, sensors.noise, sensors.bias, sensors.steps, noise.block,
                 noise.used, self.last_readings, self.fresh, self.accelerometer, self.placed_load_kg,
                 self.previous_action, self.base_command, SCALES, self.control_period_s, self.observation,

@@ -68,7 +68,7 @@ def drive(
 
 @jit
 def observe(
-    ids, qpos, sensordata, screw_qpos, qzs_qpos, accel_adr, force_adr, gravity,
+    ids, qpos, sensordata, screw_qpos, qzs_qpos, motor_qpos, accel_adr, force_adr, gravity,
     noisy, noise, bias, resolution, normals, used,
     last_readings, fresh, accelerometer, placed_load_kg, previous_action, base_command, scales,
     control_period_s, observation, reward_x, reward_scale_m, x_limit_m,
@@ -76,10 +76,11 @@ def observe(
 ):  # fmt: skip
     """Read the sensors of rigs ``ids`` into their ``observation`` rows, and score and check them.
 
-    The sensors (:class:`~microg_env.sim.sensors.SensorModel`): ruler (x), encoder (support
-    position), accelerometer (g removed) and pad force, each plus its bias and its noise (``noisy``;
-    the next of each rig's standard normal ``normals``), ruler and encoder quantised to their
-    ``resolution``; rates by backward difference (0 at a rig's first reading). The observation is
+    The sensors (:class:`~microg_env.sim.sensors.SensorModel`): ruler (x), encoder (the motor's
+    angle over the gear: the support's position on a rigid transmission), accelerometer (g
+    removed) and pad force, each plus its bias and its noise (``noisy``; the next of each rig's
+    standard normal ``normals``), ruler and encoder quantised to their ``resolution``; rates by
+    backward difference (0 at a rig's first reading). The observation is
     each reading over its scale, as float32. ``reward_x[i]`` is :func:`x_reward` of the true x;
     ``codes_out[j]`` the termination code (0: going on; 1 guide stroke, 2 screw stroke, 3 pad
     bottomed out).
@@ -107,7 +108,7 @@ def observe(
         x = qpos[i, qzs_qpos]
         screw = qpos[i, screw_qpos]
         readings[0] = x
-        readings[1] = screw
+        readings[1] = qpos[i, motor_qpos]  # the encoder: the screw's coordinate on a rigid transmission
         readings[2] = sensordata[i, accel_adr] - gravity[i]
         readings[3] = sensordata[i, force_adr]
         if noisy:

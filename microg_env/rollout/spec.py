@@ -244,7 +244,7 @@ def _overrides(values: object) -> dict[str, Any]:
             value = float(value)
         if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
             raise ValueError(f"RunSpec.overrides: {path} must be a {kind.__name__}, got {shown(value)}")
-        if kind is float and not math.isfinite(value):
+        if kind is float and not math.isfinite(value) and value != defaults[path]:  # an infinite default: itself
             raise ValueError(f"RunSpec.overrides: {path} must be finite, got {shown(value)}")
         if value != defaults[path]:
             out[path] = value

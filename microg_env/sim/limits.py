@@ -80,6 +80,14 @@ def check_pad(
 MAX_OMEGA_DT = 1.0
 
 
+def transmission_omega(params: RigParams) -> float:
+    """The compliant transmission's mode, rad/s: the motor side (rotor, screw and pulleys, reflected
+    to the support: J gear^2) against the support on the transmission's spring."""
+    screw, servo = params.screw, params.servo
+    motor_side_kg = (servo.rotor_inertia_kg_m2 + screw.screw_inertia_kg_m2) * screw.gear_rad_per_m**2
+    return math.sqrt(screw.transmission_stiffness_n_per_m * (1.0 / motor_side_kg + 1.0 / screw.support_mass_kg))
+
+
 def check_integrable(params: RigParams, physics_step_s: float, ideal_drive: bool) -> None:
     """Raise ValueError if a mode the integrator treats explicitly is too fast for the physics step."""
     screw, servo, qzs = params.screw, params.servo, params.qzs
@@ -98,6 +106,8 @@ def check_integrable(params: RigParams, physics_step_s: float, ideal_drive: bool
             modes.append(
                 ("ServoParams.bristle_stiffness_n_m_per_rad", math.sqrt(servo.bristle_stiffness_n_m_per_rad / inertia))
             )
+        if math.isfinite(screw.transmission_stiffness_n_per_m):
+            modes.append(("ScrewStageParams.transmission_stiffness_n_per_m", transmission_omega(params)))
     for name, omega in modes:
         if omega * physics_step_s > MAX_OMEGA_DT:
             raise FieldError(

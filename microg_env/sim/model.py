@@ -37,6 +37,11 @@ _FOOT_COLLISION_MARGIN_M = 0.01
 #: screw meets (~6.5 kN) leaves a speed error of 6.5 nm/s. Implicit in MuJoCo's ``implicitfast``
 #: integrator, so it neither lags nor chatters at any physics step.
 IDEAL_DRIVE_DAMPING_N_S_PER_M = 1.0e12
+#: The motor's coordinate of a compliant transmission (its angle over the gear, m of support travel).
+MOTOR_JOINT = "motor"
+#: Mass of the motor joint's body, kg: a token MuJoCo needs for a moving body (the motor side's
+#: inertia is the servo's armature, ~200 kg at the support).
+_MOTOR_BODY_MASS_KG = 1e-6
 #: Index of the dcmotor's setpoint slew rate (rad/s) in ``actuator_dynprm``.
 SLEW_PARAMETER = 7
 #: Slew rate standing for a zero speed reference (a zero rate would switch the slew limiter off).
@@ -210,6 +215,10 @@ class Rig:
         self.screw_dof = int(model.jnt_dofadr[screw])
         self.qzs_dof = int(model.jnt_dofadr[qzs])
         self.gear = params.screw.gear_rad_per_m  # motor radians per metre of support travel
+        motor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, MOTOR_JOINT)  # -1: a rigid transmission
+        #: The motor's coordinate (m of support travel) in ``qpos``, which the encoder reads: the
+        #: screw's on a rigid transmission.
+        self.motor_qpos = self.screw_qpos if motor < 0 else int(model.jnt_qposadr[motor])
         self.lander_body = model.body("lander").id
         self.load_bodies = np.array([model.body(f"load_{i}").id for i in range(len(loads_kg))], dtype=int)
         self._load_geoms = np.array([model.geom(f"load_{i}").id for i in range(len(loads_kg))], dtype=int)
@@ -346,10 +355,13 @@ class Rig:
         writes = [("qpos", self.screw_qpos, height_m)]
         if self.ideal_drive:
             return [*writes, ("ctrl", 0, 0.0)]
+        motor_m = height_m + transmission_deflection_m(params)  # the transmission's spring carries the load
+        if self.motor_qpos != self.screw_qpos:
+            writes.append(("qpos", self.motor_qpos, motor_m))
         # The speed loop's position term holds the screw's static load with a small lag.
         load = flexible_unit(params).screw_load_n
         kp, _ = speed_loop_gains(params)
-        reference = height_m * self.gear + load / (self.gear * kp)
+        reference = motor_m * self.gear + load / (self.gear * kp)
         writes += [("ctrl", 0, reference), ("ctrl", 1, 0.0), ("act", self.reference_act, reference)]
         if self.current_act is not None:  # the torque filter starts settled on that load
             writes.append(("act", self.current_act, load / self.gear / params.servo.torque_constant_n_m_per_a))
@@ -550,6 +562,40 @@ def _apply_servo(spec: mujoco.MjSpec, params: RigParams, ideal_drive: bool) -> N
         ),
         ctrlspec=mujoco.mjtCtrlInput.mjINPUT_POS | mujoco.mjtCtrlInput.mjINPUT_VEL,
     )
+    if math.isfinite(screw.transmission_stiffness_n_per_m):
+        _add_transmission(spec, params)
+
+
+def _add_transmission(spec: mujoco.MjSpec, params: RigParams) -> None:
+    """The belt and screw as one spring-damper (``ScrewStageParams.transmission_stiffness_n_per_m``)
+    between the motor side and the support: the motor's angle becomes its own coordinate, the
+    joint :data:`MOTOR_JOINT` (the angle over the gear, in metres of support travel), which the
+    drive and the encoder act on and read; a fixed tendon, its length that joint's coordinate less
+    the screw's, is the spring. Rotor, screw and pulleys (the actuator's armature) are on the
+    motor side, the floating support on the other."""
+    screw, servo = params.screw, params.servo
+    motor_side_kg = (servo.rotor_inertia_kg_m2 + screw.screw_inertia_kg_m2) * screw.gear_rad_per_m**2
+    reduced_kg = 1.0 / (1.0 / motor_side_kg + 1.0 / screw.support_mass_kg)
+    stiffness = screw.transmission_stiffness_n_per_m
+    # The joint's body carries no mass of its own (the armature is the motor side's inertia).
+    body = spec.worldbody.add_body(name=MOTOR_JOINT, mass=_MOTOR_BODY_MASS_KG, inertia=[_MOTOR_BODY_MASS_KG] * 3)
+    body.add_joint(name=MOTOR_JOINT, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=(0.0, 0.0, 1.0))
+    tendon = spec.add_tendon(name="transmission")
+    tendon.wrap_joint(MOTOR_JOINT, 1.0)
+    tendon.wrap_joint("screw", -1.0)
+    tendon.stiffness = (stiffness, 0.0, 0.0)
+    tendon.damping = (2.0 * screw.transmission_damping_ratio * math.sqrt(stiffness * reduced_kg), 0.0, 0.0)
+    tendon.springlength = (0.0, 0.0)
+    spec.actuator("servo").target = MOTOR_JOINT
+    for sensor in ("encoder_pos", "encoder_vel"):
+        spec.sensor(sensor).objname = MOTOR_JOINT
+
+
+def transmission_deflection_m(params: RigParams) -> float:
+    """How far the motor side stands above the support at rest, m: the screw's static load on the
+    transmission's spring (0 for a rigid transmission)."""
+    stiffness = params.screw.transmission_stiffness_n_per_m
+    return flexible_unit(params).screw_load_n / stiffness if math.isfinite(stiffness) else 0.0
 
 
 def _count_pad_contacts(model: mujoco.MjModel, height_joint: str, thickness_m: float) -> int:
@@ -609,8 +655,11 @@ def build_spec(
     _apply_flexible_unit(spec, params)
     _apply_servo(spec, params, ideal_drive)
     n_contacts = _apply_pad_contact(spec, params, params.lander.mass_kg + sum(loads_kg), "screw")
-    home = spec.key("home")
-    home.ctrl = (0.0,) if ideal_drive else (float(home.qpos[0]) * params.screw.gear_rad_per_m, 0.0)
+    home = spec.key("home")  # its coordinates, filled in by the contact count's compile
+    motor_m = float(home.qpos[0]) + transmission_deflection_m(params)
+    if spec.joint(MOTOR_JOINT) is not None:  # the motor's body is the world's last: its coordinate too
+        home.qpos = (*list(home.qpos)[:-1], motor_m)
+    home.ctrl = (0.0,) if ideal_drive else (motor_m * params.screw.gear_rad_per_m, 0.0)
     return spec, n_contacts
 
 

@@ -83,6 +83,8 @@ def test_spec_hash_is_content_only_and_stable_across_processes():
         ({"overrides": {"servo.speed_loop_hz": 100.0}}, "unknown parameter 'servo.speed_loop_hz'"),
         ({"overrides": {"servo.speed_loop_gain_hz": "fast"}}, "servo.speed_loop_gain_hz must be a float"),
         ({"overrides": {"servo.speed_loop_gain_hz": -5.0}}, "speed_loop_gain_hz"),
+        ({"overrides": {"servo.peak_torque_n_m": math.inf}}, "servo.peak_torque_n_m must be finite"),
+        ({"overrides": {"screw.transmission_stiffness_n_per_m": 1e4}}, "transmission_stiffness_n_per_m must be in"),
         ({"gains": {"kq": 1.0}}, "RunSpec.gains: unknown field 'kq'"),
         ({"imperfections": {"friction": "no"}}, "RunSpec.imperfections.friction"),
         ({"control_period_us": 0}, "RunSpec.control_period_us"),
@@ -94,6 +96,13 @@ def test_spec_hash_is_content_only_and_stable_across_processes():
 def test_a_bad_spec_is_refused_naming_the_value(fields, named):
     with pytest.raises(ValueError, match=named.replace("(", r"\(").replace(".", r"\.")):
         RunSpec.from_dict(fields)
+
+
+def test_an_infinite_default_given_as_an_override_is_that_default():
+    """A sweep names the rigid transmission as inf, its default: the spec is the plain one."""
+    rigid = RunSpec(overrides={"screw.transmission_stiffness_n_per_m": math.inf})
+    assert rigid.overrides == {}
+    assert rigid.hash == RunSpec().hash
 
 
 def test_run_and_run_many_give_the_same_runs_and_a_bad_run_is_recorded():

@@ -7,7 +7,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from microg_env.experiments.studies import fifty_gram_floor, landing_monte_carlo, period_bandwidth, sensitivity
+from microg_env.experiments.studies import (
+    fifty_gram_floor,
+    landing_monte_carlo,
+    period_bandwidth,
+    sensitivity,
+    transmission,
+)
 from microg_env.files import write_text
 
 #: The study pages by the name a campaign's ``report:`` gives: each module's ``render(campaign,
@@ -18,6 +24,7 @@ STUDIES = {
     "fifty-gram-floor": fifty_gram_floor,
     "landing-monte-carlo": landing_monte_carlo,
     "sensitivity": sensitivity,
+    "transmission": transmission,
 }
 #: The page of a campaign folder.
 REPORT_FILE = "report.md"
