@@ -8,6 +8,7 @@ from gymnasium.envs.registration import register, registry
 
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization, Imperfections
+from microg_env.interface import RESIDUAL_HIGHPASS_HZ
 from microg_env.params import RigParams
 from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
 from microg_env.sim.contact import SpringDamperContact
@@ -45,6 +46,18 @@ if "MicroGravityLanding-Residual-v1" not in registry:
             "scenario_sampler": "training",
             "domain_randomization": "full",
         },
+        reward_threshold=REWARD_THRESHOLD,
+    )
+if "MicroGravityLanding-Residual-v2" not in registry:
+    # v1's task with the residual high-passed at RESIDUAL_HIGHPASS_HZ (interface.residual_setpoint):
+    # the residual shapes transients and cannot move the steady x its base holds, so it cannot
+    # trade the compensation error for x. A zero action is still exactly the base controller: the
+    # same reward_threshold.
+    register(
+        id="MicroGravityLanding-Residual-v2",
+        entry_point="microg_env.envs.landing:MicroGravityLandingEnv",
+        vector_entry_point="microg_env.envs.vector:MicroGravityLandingVectorEnv",
+        kwargs={**registry["MicroGravityLanding-Residual-v1"].kwargs, "residual_highpass_hz": RESIDUAL_HIGHPASS_HZ},
         reward_threshold=REWARD_THRESHOLD,
     )
 

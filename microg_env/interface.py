@@ -46,6 +46,45 @@ ACTION_MODES = ("speed", "residual")
 #: The x setpoint that the action +-1 stands for in the residual action mode, m (the default of
 #: the environment's ``residual_limit_m``).
 RESIDUAL_LIMIT_M = 1e-6
+#: The corner of the residual's high-pass in ``MicroGravityLanding-Residual-v2``, Hz. Its time
+#: constant, 1/(2 pi 2 Hz) = 80 ms, lets a held residual decay by e^-2.5 within the 0.2 s that
+#: the descent fit waits after a weight is placed (analysis.metrics.SETTLE_S), so the residual
+#: shapes transients while the base controller keeps the steady state; it is the corner
+#: ``adaptive`` high-passes its cogging error at too.
+RESIDUAL_HIGHPASS_HZ = 2.0
+#: The corners a residual's high-pass may take, Hz (0: none; the drive's 100 Hz speed loop, above
+#: which nothing of the residual would pass that the drive follows).
+RESIDUAL_HIGHPASS_RANGE_HZ = (0.0, 100.0)
+
+
+def highpass_gain(corner_hz: float, period_s: float) -> float | None:
+    """The gain a = tau / (tau + T) of a first-order high-pass with corner ``corner_hz`` sampled
+    every ``period_s`` (tau = 1 / (2 pi corner)); None for a corner of 0 (no filter)."""
+    if corner_hz == 0.0:
+        return None
+    tau = 1.0 / (2.0 * np.pi * corner_hz)
+    return tau / (tau + period_s)
+
+
+def residual_setpoint(
+    actions: np.ndarray,
+    ids: np.ndarray,
+    limit_m: float,
+    gain: float | None,
+    last_action: np.ndarray,
+    last_setpoint_m: np.ndarray,
+) -> np.ndarray:
+    """The x setpoints (m) that residual ``actions`` of rigs ``ids`` stand for: ``action *
+    limit_m``, or with a high-pass ``gain`` (:func:`highpass_gain`) that passed through the filter
+    y_n = a (y_(n-1) + (u_n - u_(n-1)) limit), whose state per rig is ``last_action`` (u) and
+    ``last_setpoint_m`` (y), both 0 when an episode starts: a held action decays to a zero
+    setpoint, so a residual cannot move the steady state its base controller holds."""
+    if gain is None:
+        return actions * limit_m
+    setpoint = gain * (last_setpoint_m[ids] + (actions - last_action[ids]) * limit_m)
+    last_action[ids] = actions
+    last_setpoint_m[ids] = setpoint
+    return setpoint
 
 
 def action_space() -> spaces.Box:

@@ -1,7 +1,7 @@
-"""The returns table of ``MicroGravityLanding-Residual-v1``: what each controller earns, per scenario.
+"""The returns table of the learning task (MicroGravityLanding-Residual-v2 or -v1): what each controller earns.
 
 Every controller runs in the residual environment with the id's defaults (a residual x setpoint of
-+-1 um on `adaptive`, held 5 control periods; plants and drives drawn by
++-1 um on `adaptive`, held 5 control periods, high-passed at 2 Hz in v2; plants and drives drawn by
 ``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero residual`` (`adaptive`
 alone), the other classical controllers as the base with a zero residual (an all-zero residual is
 exactly its base) and learned policies (shipped names or policy folders trained on this task). A
@@ -12,7 +12,7 @@ residual's mean return on ``training`` over 100 seeds (``--seeds 100 --scenarios
 rounded down: a policy above it beats the best deployable classical controller on the task it was
 trained on. Returns grow with an episode's length, so compare controllers on the same seeds.
 
-Run: ``python training/returns_table.py [--seeds 5] [--scenarios training,condition-1] [--policies residual-ppo]``.
+Run: ``python training/returns_table.py [--env ID] [--seeds 5] [--scenarios training,condition-1] [--policies NAME]``.
 """
 
 from __future__ import annotations
@@ -29,9 +29,10 @@ from microg_env.controllers.registry import check_policy_folder, is_policy_folde
 from microg_env.experiments.comparison import TEST_SEED
 from microg_env.scenarios import comparison_scenarios
 
-ENV_ID = "MicroGravityLanding-Residual-v1"
+#: The learning task's ids, the newest first (the default).
+ENV_IDS = ("MicroGravityLanding-Residual-v2", "MicroGravityLanding-Residual-v1")
 #: The base controllers run with a zero residual, by the row's name.
-BASE = gym.spec(ENV_ID).kwargs["base_controller"]  # the id's own, under a zero residual
+BASE = gym.spec(ENV_IDS[0]).kwargs["base_controller"]  # the ids' own, under a zero residual
 BASES = {"pid": "pid", "feedforward": "feedforward", f"zero residual ({BASE})": BASE, "oracle": "oracle"}
 SCENARIOS = ("training", *comparison_scenarios())
 
@@ -47,28 +48,30 @@ def episode_return(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], seed: 
     return total
 
 
-def make_env(scenario: str, base: str = BASE) -> gym.Env:
+def make_env(env_id: str, scenario: str, base: str = BASE) -> gym.Env:
     """The id's environment on ``scenario`` ("training": its own draws) with ``base`` under the residual."""
     if scenario == "training":
-        return gym.make(ENV_ID, base_controller=base)
-    return gym.make(ENV_ID, base_controller=base, scenario_sampler=None, scenario=comparison_scenarios()[scenario])
+        return gym.make(env_id, base_controller=base)
+    return gym.make(env_id, base_controller=base, scenario_sampler=None, scenario=comparison_scenarios()[scenario])
 
 
-def policy_actor(name: str) -> Callable[[np.ndarray], np.ndarray]:
-    """The deterministic action of the policy ``name`` (shipped or a folder) trained on the id's task."""
+def policy_actor(env_id: str, name: str) -> Callable[[np.ndarray], np.ndarray]:
+    """The deterministic action of the policy ``name`` (shipped or a folder) trained on ``env_id``'s task."""
     folder = name if is_policy_folder(name) else shipped_policy_folder(name)
     card, policy = check_policy_folder(folder)
     env = card["env_kwargs"]
-    task = gym.spec(ENV_ID).kwargs
-    for key in ("action_mode", "base_controller", "decision_period", "residual_limit_m"):
-        if env.get(key) != task[key]:
-            raise ValueError(f"policy {name!r} was trained with {key} {env.get(key)!r}, not the task's {task[key]!r}")
+    task = gym.spec(env_id).kwargs
+    for key in ("action_mode", "base_controller", "decision_period", "residual_limit_m", "residual_highpass_hz"):
+        if env.get(key) != task.get(key):
+            raise ValueError(
+                f"policy {name!r} was trained with {key} {env.get(key)!r}, not {env_id}'s {task.get(key)!r}"
+            )
     return lambda obs: policy.predict(obs, deterministic=True)[0].reshape(-1)
 
 
-def returns(row: str, scenario: str, seeds: int) -> list[float]:
+def returns(env_id: str, row: str, scenario: str, seeds: int) -> list[float]:
     """The returns of controller ``row`` (a :data:`BASES` name, "random" or a policy) on ``scenario``."""
-    env = make_env(scenario, BASES.get(row, BASE))
+    env = make_env(env_id, scenario, BASES.get(row, BASE))
     values = []
     for seed in range(TEST_SEED, TEST_SEED + seeds):
         if row == "random":
@@ -77,7 +80,7 @@ def returns(row: str, scenario: str, seeds: int) -> list[float]:
         elif row in BASES:
             act = lambda obs: np.zeros(1, dtype=np.float32)  # noqa: E731
         else:
-            act = policy_actor(row)
+            act = policy_actor(env_id, row)
         values.append(episode_return(env, act, seed))
     env.close()
     return values
@@ -85,6 +88,7 @@ def returns(row: str, scenario: str, seeds: int) -> list[float]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", choices=ENV_IDS, default=ENV_IDS[0], help=f"the task (default {ENV_IDS[0]})")
     parser.add_argument("--seeds", type=int, default=5, help="seeds per scenario, from 1000 (default 5)")
     parser.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated (default: every one)")
     parser.add_argument("--policies", default="", help="learned policies trained on this task, comma-separated")
@@ -96,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     for row in rows:
         cells = []
         for scenario in scenarios:
-            values = returns(row, scenario, args.seeds)
+            values = returns(args.env, row, scenario, args.seeds)
             cells.append(f"{np.mean(values):.1f} ± {np.std(values):.1f}")
         print(f"| {row} | " + " | ".join(cells) + " |", flush=True)
     return 0

@@ -30,7 +30,16 @@ from microg_env import validate
 from microg_env.compiled import jit
 from microg_env.controllers.base import SetpointController, VectorController, tell_plants
 from microg_env.files import atomic_path
-from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, OBSERVATION_SCALES, RESIDUAL_LIMIT_M
+from microg_env.interface import (
+    MAX_SPEED_M_S,
+    OBSERVATION_INDEX,
+    OBSERVATION_SCALES,
+    RESIDUAL_HIGHPASS_RANGE_HZ,
+    RESIDUAL_LIMIT_M,
+    highpass_gain,
+    residual_setpoint,
+)
+from microg_env.params import CONTROL_PERIOD_S
 
 #: Activations of the exported networks (stable-baselines3's defaults: PPO tanh, SAC ReLU).
 ACTIVATIONS = {"tanh": np.tanh, "relu": lambda z: np.maximum(z, 0.0)}
@@ -140,11 +149,18 @@ class PolicyController(VectorController):
     The policy acts every ``decision_period`` control periods. With a ``base`` controller its
     action is a setpoint for x, ``action * residual_limit_m``, that the base holds while commanding
     the drive every period (the residual mode of ``MicroGravityLanding-v1``); without one the action
-    is the speed command, held. An all-zero residual is exactly the base controller. Many rigs'
-    observations go through the policy in one batch.
+    is the speed command, held. With ``residual_highpass_hz`` the setpoint is the action high-passed
+    (:func:`~microg_env.interface.residual_setpoint`), as the environment's. An all-zero residual is
+    exactly the base controller. Many rigs' observations go through the policy in one batch.
     """
 
-    STATE: ClassVar[dict[str, float]] = {"_periods": 0.0, "_action": 0.0, "_base_command_m_s": 0.0}
+    STATE: ClassVar[dict[str, float]] = {
+        "_periods": 0.0,
+        "_action": 0.0,
+        "_base_command_m_s": 0.0,
+        "_filtered_action": 0.0,
+        "_setpoint_m": 0.0,
+    }
 
     def __init__(
         self,
@@ -153,6 +169,8 @@ class PolicyController(VectorController):
         decision_period: int = 1,
         base: SetpointController | None = None,
         residual_limit_m: float = RESIDUAL_LIMIT_M,
+        residual_highpass_hz: float = 0.0,
+        control_period_s: float = CONTROL_PERIOD_S,
     ) -> None:
         super().__init__(*(() if base is None else (base,)))
         self.policy = policy
@@ -160,6 +178,8 @@ class PolicyController(VectorController):
         self.decision_period = validate.integer("decision_period", decision_period, 1, 1000)
         self.base = base
         self.residual_limit_m = validate.positive("residual_limit_m", residual_limit_m, "m", 1e-3)
+        highpass_hz = validate.between("residual_highpass_hz", residual_highpass_hz, *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
+        self._residual_gain = highpass_gain(highpass_hz, self.decision_period * control_period_s)
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         due = np.empty(ids.size, dtype=np.bool_)
@@ -173,7 +193,14 @@ class PolicyController(VectorController):
             action, _ = self.policy.predict(seen, deterministic=self.deterministic)
             self._action[acting] = np.clip(np.asarray(action, dtype=np.float32).reshape(-1), -1.0, 1.0)
             if self.base is not None:
-                self.base.setpoint_m[acting] = self._action[acting] * self.residual_limit_m
+                self.base.setpoint_m[acting] = residual_setpoint(
+                    self._action[acting],
+                    acting,
+                    self.residual_limit_m,
+                    self._residual_gain,
+                    self._filtered_action,
+                    self._setpoint_m,
+                )
         if self.base is None:
             return self._action[ids]
         command = self.base.act(rows, ids)  # grown with this controller (a part of it)

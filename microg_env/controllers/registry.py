@@ -21,7 +21,7 @@ from microg_env.controllers.base import Controller
 from microg_env.controllers.feedforward import AdaptiveFeedforward, Feedforward, Oracle
 from microg_env.controllers.pid import PID, load_gains
 from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy, PolicyController
-from microg_env.interface import ACTION_MODES, RESIDUAL_LIMIT_M
+from microg_env.interface import ACTION_MODES, RESIDUAL_HIGHPASS_RANGE_HZ, RESIDUAL_LIMIT_M
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, RigParams
 from microg_env.validate import FieldError
 
@@ -116,6 +116,7 @@ def _check_deployment(env: dict[str, Any]) -> None:
     validate.integer("decision_period", env.get("decision_period", 1), 1, 1000)
     validate.between("control_period_s", env.get("control_period_s", CONTROL_PERIOD_S), *CONTROL_PERIOD_RANGE_S, "s")
     validate.positive("residual_limit_m", env.get("residual_limit_m", RESIDUAL_LIMIT_M), "m", 1e-3)
+    validate.between("residual_highpass_hz", env.get("residual_highpass_hz", 0.0), *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
 
 
 def shipped_policy_folder(name: str) -> Path:
@@ -158,4 +159,6 @@ def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyContro
         decision_period=int(env_kwargs.get("decision_period", 1)),
         base=make_controller(env_kwargs.get("base_controller", "pid"), period) if residual else None,
         residual_limit_m=float(env_kwargs.get("residual_limit_m", RESIDUAL_LIMIT_M)),
+        residual_highpass_hz=float(env_kwargs.get("residual_highpass_hz", 0.0)),
+        control_period_s=period,
     )

@@ -26,7 +26,14 @@ from microg_env.controllers.registry import make_controller
 from microg_env.envs import period
 from microg_env.envs.settings import TaskSettings
 from microg_env.imperfections import apply_imperfections
-from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, SCALES, SENSOR_SETS
+from microg_env.interface import (
+    MAX_SPEED_M_S,
+    OBSERVATION_INDEX,
+    SCALES,
+    SENSOR_SETS,
+    highpass_gain,
+    residual_setpoint,
+)
 from microg_env.params import MAX_CONTROL_STEPS, RigParams
 from microg_env.scenarios import LoadStep, Scenario
 from microg_env.sim.limits import check_pad
@@ -58,6 +65,7 @@ TASK_ATTRIBUTES = (
     "action_mode",
     "base_controller",
     "residual_limit_m",
+    "residual_highpass_hz",
     "reward_scale_m",
     "reset_noise_scale",
     "xml_file",
@@ -190,6 +198,10 @@ class LandingCore:
         self.pending_command = np.zeros(n)  # m/s, reaching the drive at the next period (control delay)
         self.command = np.zeros(n)  # m/s, the command the drive last received
         self.base_command = np.zeros(n)  # m/s, the base controller's last command (residual mode)
+        # The residual's high-pass (interface.residual_setpoint): its last input and output.
+        self._residual_gain = highpass_gain(self.residual_highpass_hz, self.decision_period * self.control_period_s)
+        self.residual_action = np.zeros(n)
+        self.residual_setpoint_m = np.zeros(n)
         self.position_ref = np.zeros(n)  # the drive's interpolated position reference, motor rad
         self.drift_n_per_s = np.zeros(n)
         self.x_stiffness = np.zeros(n)
@@ -303,6 +315,8 @@ class LandingCore:
         self.pending_command[ids] = 0.0
         self.command[ids] = 0.0
         self.base_command[ids] = 0.0
+        self.residual_action[ids] = 0.0
+        self.residual_setpoint_m[ids] = 0.0
         self.fresh[ids] = True
         self._noise.restart(ids)
         if self.base is not None:
@@ -343,7 +357,9 @@ class LandingCore:
         (:data:`TERMINATION_REASONS`), whether each was truncated, and the periods run.
         """
         if self.base is not None:
-            self.base.setpoint_m[ids] = actions * self.residual_limit_m
+            self.base.setpoint_m[ids] = residual_setpoint(
+                actions, ids, self.residual_limit_m, self._residual_gain, self.residual_action, self.residual_setpoint_m
+            )
         n = ids.size
         total, periods = np.zeros(n), np.zeros(n, dtype=np.int64)
         codes, truncated = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool)

@@ -52,6 +52,8 @@ class MicroGravityLandingEnv(gym.Env):
       base controller (``base_controller``: ``pid``, ``pid-dom``, ``feedforward``, ``adaptive`` or
       ``oracle``, which is told each episode's plant) that commands the
       drive every control period from the latest observation. An action of 0 is the base controller.
+      With ``residual_highpass_hz`` the setpoint is the action high-passed
+      (:func:`~microg_env.interface.residual_setpoint`): a held action decays to 0.
 
     Out-of-range values are clipped to [-1, 1]; NaN, infinite, non-numeric or wrongly shaped
     actions raise ``ValueError``. The drive interpolates its position reference at the commanded
@@ -112,6 +114,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``action_mode`` | ``"speed"`` or ``"residual"`` (see Action Space) |
     | ``base_controller`` | the controller a residual action moves the setpoint of |
     | ``residual_limit_m`` | the setpoint an action of +-1 stands for, m |
+    | ``residual_highpass_hz`` | corner of the residual's first-order high-pass, Hz (0: none) |
     | ``imperfections`` | which non-ideal effects are on (or their flags as a dict) |
     | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
     | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force and accelerometer read 0) |

@@ -660,9 +660,20 @@ def test_a_generated_bad_campaign_file_is_one_line_naming_the_file(case, data, t
 
 def _policy_cases():
     card = json.loads((REPO / "microg_env" / "policies" / "residual-ppo" / "policy.json").read_text())
-    for key in ("action_mode", "base_controller", "decision_period", "residual_limit_m", "control_period_s"):
+    for key in (
+        "action_mode",
+        "base_controller",
+        "decision_period",
+        "residual_limit_m",
+        "residual_highpass_hz",
+        "control_period_s",
+    ):
         for value in BAD_VALUES:
-            if (key, value) in {("decision_period", "1.5"), ("residual_limit_m", "1.5")}:
+            if (key, value) in {
+                ("decision_period", "1.5"),
+                ("residual_limit_m", "1.5"),
+                ("residual_highpass_hz", "1.5"),
+            }:
                 continue
             bad = json.loads(json.dumps(card))
             bad["env_kwargs"][key] = yaml.safe_load(value)

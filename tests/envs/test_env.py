@@ -4,6 +4,7 @@ import copy
 import dataclasses
 import inspect
 import itertools
+import math
 import os
 import pickle
 import subprocess
@@ -270,6 +271,27 @@ def test_a_residual_moves_the_base_controllers_setpoint():
     assert np.mean(xs[500:]) == pytest.approx(1.5e-6, abs=0.1e-6)  # the loop holds x at the setpoint
 
 
+def test_a_high_passed_residual_decays_to_the_base_controllers_steady_state():
+    """With ``residual_highpass_hz`` a held action is a step through a first-order high-pass: its
+    setpoint decays as a^(n+1) (a = tau / (tau + T), tau = 1 / (2 pi f), T the decision period),
+    so the base controller brings x back to 0; the filter starts again at every reset."""
+    env = MicroGravityLandingEnv(
+        condition=2, action_mode="residual", base_controller="feedforward", decision_period=5, residual_highpass_hz=2.0
+    )
+    tau = 1.0 / (2.0 * math.pi * 2.0)
+    gain = tau / (tau + 5e-3)
+    for _ in range(2):
+        env.reset(seed=0)
+        xs, setpoints = [], []
+        for _ in range(200):  # 1 s
+            _, _, _, _, info = env.step(np.array([1.0], dtype=np.float32))
+            xs.append(info["x_m"])
+            setpoints.append(info["setpoint_m"])
+        np.testing.assert_allclose(setpoints, 1e-6 * gain ** np.arange(1, 201), rtol=1e-12)
+        assert max(xs[:20]) > 0.3e-6  # the step moved x at first
+        assert abs(np.mean(xs[100:])) < 0.05e-6  # and x is back at the base's 0 within 0.5 s
+
+
 def test_the_decision_period_holds_the_action_and_steps_the_control_periods():
     env = MicroGravityLandingEnv(condition=1, decision_period=5, action_mode="residual", base_controller="pid")
     _, info = env.reset(seed=0)
@@ -379,6 +401,8 @@ def test_bad_actions_raise(action):
         ({"action_mode": "torque"}, "action_mode"),
         ({"base_controller": "lqr"}, "base_controller"),
         ({"residual_limit_m": 1.0}, "residual_limit_m"),
+        ({"residual_highpass_hz": -1.0}, "residual_highpass_hz"),
+        ({"residual_highpass_hz": 500.0}, "residual_highpass_hz"),
         ({"scenario_sampler": "testing"}, "scenario_sampler"),
         ({"domain_randomization": {"pad_stiffness": 2.0}}, "pad_stiffness"),
         ({"domain_randomization": "drive"}, "domain_randomization"),

@@ -16,7 +16,8 @@ import yaml
 
 import microg_env  # registers the environments
 from microg_env.analysis.summary import control_cost
-from microg_env.controllers import MLPPolicy, PolicyController, make_controller
+from microg_env.controllers import MLPPolicy, make_controller
+from microg_env.controllers.registry import deployed_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import export_policy, write_policy_folder
@@ -134,22 +135,36 @@ def _random_policy(seed: int) -> MLPPolicy:
     )
 
 
-def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly():
-    """The deployed composition (policy + base, decision period, rebuilt observation) is the
-    training environment's, bit for bit, for a policy that moves the setpoint every decision."""
+@pytest.mark.parametrize("highpass_hz", [0.0, 2.0])
+def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpass_hz):
+    """The deployed composition (policy + base, decision period, rebuilt observation, the
+    residual's high-pass) is the training environment's, bit for bit, for a policy that moves the
+    setpoint every decision; the setpoints are the actions, or at 2 Hz the actions through
+    y_n = a (y_(n-1) + (u_n - u_(n-1)) 1 um) with a = tau / (tau + 5 ms), tau = 1 / (2 pi 2 Hz)."""
     policy = _random_policy(3)
-    residual_env = MicroGravityLandingEnv(condition=3, **RESIDUAL)
+    residual_env = MicroGravityLandingEnv(condition=3, **RESIDUAL, residual_highpass_hz=highpass_hz)
     observation, info = residual_env.reset(seed=4)
-    xs, commands = [], []
+    xs, commands, actions, setpoints = [], [], [], []
     for _ in range(600):  # 3 s
-        observation, _, _, _, info = residual_env.step(policy.predict(observation)[0])
+        action = policy.predict(observation)[0]
+        observation, _, _, _, info = residual_env.step(action)
         xs.append(info["x_m"])
         commands.append(info["command_m_s"])
-    controller = PolicyController(policy, decision_period=5, base=make_controller("feedforward", 1e-3))
+        actions.append(float(action[0]))
+        setpoints.append(info["setpoint_m"])
+    controller = deployed_controller(policy, RESIDUAL | {"residual_highpass_hz": highpass_hz})
     deployed = run_episode(MicroGravityLandingEnv(condition=3), controller, seed=4, duration_s=3.0)
     np.testing.assert_array_equal(deployed.x_m[5::5], np.array(xs))
     np.testing.assert_array_equal(deployed.command_m_s[5::5], np.array(commands))
     assert np.ptp(np.array(xs)) > 1e-7  # the policy did move x
+    expected, last_u, last_y = [], 0.0, 0.0
+    tau = 1.0 / (2.0 * math.pi * highpass_hz) if highpass_hz else math.inf
+    for u in actions:
+        last_y = u * 1e-6 if highpass_hz == 0 else tau / (tau + 5e-3) * (last_y + (u - last_u) * 1e-6)
+        last_u = u
+        expected.append(last_y)
+    np.testing.assert_allclose(setpoints, expected, rtol=1e-9, atol=1e-18)
+    assert np.ptp(setpoints) > 1e-8  # the setpoint did move
 
 
 def test_an_exported_policy_round_trips_through_its_file(tmp_path):
@@ -694,23 +709,45 @@ def test_a_broken_run_folder_is_named_and_left_as_it_was(ppo_run, tmp_path, chan
 # -- the registered learning task ----------------------------------------------------------------
 
 RESIDUAL_ID = "MicroGravityLanding-Residual-v1"
+#: The learning task's versions and the high-pass each puts on the residual.
+RESIDUAL_IDS = {RESIDUAL_ID: None, "MicroGravityLanding-Residual-v2": 2.0}
 
 
-def test_the_residual_task_is_registered_with_its_defaults_and_passes_check_env():
+@pytest.mark.parametrize("env_id", RESIDUAL_IDS)
+def test_the_residual_task_is_registered_with_its_defaults_and_passes_check_env(env_id):
     import gymnasium as gym
     from gymnasium.utils.env_checker import check_env
 
-    spec = gym.spec(RESIDUAL_ID)
-    assert spec.kwargs == RESIDUAL | {
+    spec = gym.spec(env_id)
+    highpass = {} if RESIDUAL_IDS[env_id] is None else {"residual_highpass_hz": RESIDUAL_IDS[env_id]}
+    assert spec.kwargs == RESIDUAL | highpass | {
         "base_controller": "adaptive",
         "residual_limit_m": 1e-6,
         "scenario_sampler": "training",
         "domain_randomization": "full",
     }
     assert spec.reward_threshold == microg_env.REWARD_THRESHOLD > 0
-    check_env(gym.make(RESIDUAL_ID).unwrapped, skip_render_check=True)
+    check_env(gym.make(env_id).unwrapped, skip_render_check=True)
     # a run's settings are the id's defaults updated by the file's entry: the card says the whole task
-    assert hp.load("ppo", RESIDUAL_ID).env_kwargs == spec.kwargs
+    assert hp.load("ppo", env_id).env_kwargs == spec.kwargs
+
+
+def test_a_zero_action_is_the_base_controller_on_every_version_of_the_residual_task():
+    """v2's high-pass passes a zero residual as zero, so its zero action is v1's, bit for bit, and
+    the two share the zero residual's return as their reward_threshold."""
+    import gymnasium as gym
+
+    runs = []
+    for env_id in RESIDUAL_IDS:
+        env = gym.make(env_id)
+        observations, rewards = [env.reset(seed=7)[0]], []
+        for _ in range(300):
+            observation, reward, *_ = env.step(np.zeros(1, dtype=np.float32))
+            observations.append(observation)
+            rewards.append(reward)
+        runs.append((np.array(observations), rewards))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    assert runs[0][1] == runs[1][1]
 
 
 def test_validation_on_the_residual_task_drives_a_speed_environment():
