@@ -443,6 +443,7 @@ class _Run:
             self._stop(model, venv, model.num_timesteps)  # checkpointed above
         venv.close()
         self.state["finished"] = True
+        self.state["wall_s"] = round(self.wall_s(), 1)  # the final evaluation and export included
         write_text(self.folder / CHECKPOINTS / LATEST, json.dumps(self.state, indent=2) + "\n")
         best, base = self.state["best_cost"], self.state.get("base_cost")
         verdict = ""

@@ -170,14 +170,15 @@ def test_the_shipped_policy_records_its_training():
 
 
 def test_the_policy_shipped_for_the_registered_task_records_its_training():
-    """residual-ppo-adaptive: the best of five seeds of the packaged recipe on
-    MicroGravityLanding-Residual-v1 (docs/controllers.md gives all five)."""
+    """residual-ppo-adaptive: the best of five seeds, by validation cost, of the packaged recipe on
+    MicroGravityLanding-Residual-v2 (docs/controllers.md gives all five)."""
     folder = shipped_policy_folder("residual-ppo-adaptive")
     card = policy_card(folder)
-    assert card["command"].startswith("microg train --env MicroGravityLanding-Residual-v1 --seed 4 ")
-    assert card["env_id"] == "MicroGravityLanding-Residual-v1"
-    assert card["hyperparams"] == load_hyperparams("ppo", "MicroGravityLanding-Residual-v1").as_config()
+    assert card["command"].startswith("microg train --env MicroGravityLanding-Residual-v2 --seed 3 ")
+    assert card["env_id"] == "MicroGravityLanding-Residual-v2"
+    assert card["hyperparams"] == load_hyperparams("ppo", "MicroGravityLanding-Residual-v2").as_config()
     assert card["env_kwargs"]["base_controller"] == "adaptive"
+    assert card["env_kwargs"]["residual_highpass_hz"] == 2.0  # deployed through the task's high-pass
     totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
     assert totals["timesteps"] >= card["target_timesteps"] == 1_000_000
     assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
