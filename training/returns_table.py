@@ -1,7 +1,7 @@
 """The returns table of the learning task (MicroGravityLanding-Residual-v2 or -v1): what each controller earns.
 
-Every controller runs in the residual environment with the id's defaults (a residual x setpoint of
-+-1 um on `adaptive`, held 5 control periods, high-passed at 2 Hz in v2; plants and drives drawn by
+Every controller runs in the residual environment with the id's defaults (a residual x setpoint on
+`adaptive`, held 5 control periods: +-1 um in v1, +-3 um high-passed at 2 Hz in v2; plants and drives drawn by
 ``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero residual`` (`adaptive`
 alone), the other classical controllers as the base with a zero residual (an all-zero residual is
 exactly its base) and learned policies (shipped names or policy folders trained on this task). A

@@ -4,13 +4,12 @@ Table 1's pad solid and the calibrated pad dashed."""
 from __future__ import annotations
 
 from collections.abc import Iterable
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from microg_env.analysis.metrics import contacts
 from microg_env.analysis.plots import envelope, figure_class, save_figure
 from microg_env.paper.reproduction import NUMBERS, Reproduction
-from microg_env.rollout.runner import RunResult
+from microg_env.rollout.runner import RunResult, process_pool
 from microg_env.trajectory import Trajectory
 
 PAD_LABELS = {"paper": "Table 1 pad", "calibrated": "calibrated pad"}
@@ -59,7 +58,7 @@ def save_figures(rep: Reproduction, folder: Path, workers: int = 1) -> None:
     if workers == 1:
         _save(rep, folder, shares[0])
         return
-    with ProcessPoolExecutor(max_workers=workers - 1) as pool:
+    with process_pool(workers - 1) as pool:
         others = [pool.submit(_save, rep, folder, share) for share in shares[1:]]
         _save(rep, folder, shares[0])
         for other in others:

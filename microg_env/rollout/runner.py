@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import multiprocessing
 import os
 import platform
 import time
@@ -93,6 +94,16 @@ def run(
     return RunResult(spec, metrics, None, {}, time.perf_counter() - start, versions(), trajectory, reference)
 
 
+def process_pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` processes forked from a fork server (a fresh process that imported this
+    module once), not from this one: a process that has stepped a batch holds thread pools (MuJoCo's,
+    the numerical libraries') whose threads a forked child lacks, and a ``microg compare`` run in a
+    test runner's worker once hung so, in a forked child building its reference."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload([__name__])
+    return ProcessPoolExecutor(max_workers=workers, mp_context=context)
+
+
 def run_each(
     specs: Sequence[RunSpec], workers: int | None = None, progress: Callable[[int], None] | None = None
 ) -> list[RunResult]:
@@ -114,7 +125,7 @@ def run_each(
         for i in order:
             done(i, run(specs[i]))
         return results
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    with process_pool(workers) as pool:
         planned = [_planned_reference(spec) for spec in specs]
         references = _shared_references(planned, pool)
         futures = {}
@@ -181,7 +192,7 @@ def run_many(
         return [(i, RunResult(specs[i], None, error_text(error)))]
 
     with contextlib.ExitStack() as stack:
-        pool = stack.enter_context(ProcessPoolExecutor(max_workers=workers)) if workers > 1 else None
+        pool = stack.enter_context(process_pool(workers)) if workers > 1 else None
         for every in groups.values():
             members = []
             for i in every:  # a spec whose controller cannot be made fails alone, before any stepping

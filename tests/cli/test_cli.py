@@ -673,6 +673,7 @@ def _policy_cases():
                 ("decision_period", "1.5"),
                 ("residual_limit_m", "1.5"),
                 ("residual_highpass_hz", "1.5"),
+                ("residual_highpass_hz", "0"),  # 0 Hz: no high-pass, a valid corner
             }:
                 continue
             bad = json.loads(json.dumps(card))
