@@ -7,6 +7,7 @@ import contextlib
 import itertools
 import json
 import math
+import multiprocessing
 import os
 import shutil
 import signal
@@ -637,17 +638,24 @@ def test_run_each_simulates_a_reference_its_runs_share_once(tmp_path, monkeypatc
     """Runs of one plant and schedule on two processes: each process used to simulate the reference
     itself (two or more times in all); now it is simulated once, before them, and each run cuts
     its own from it, bit for bit as run alone."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from microg_env.rollout import runner
     from microg_env.sim import reference
 
     calls = tmp_path / "calls"
     simulate = reference._simulate
 
     def counted(*args):
-        with calls.open("a") as log:  # the pool's processes are forked: each appends its own line
+        with calls.open("a") as log:  # each forked process appends its own line
             log.write(f"{args[-1]}\n")
         return simulate(*args)
 
     monkeypatch.setattr(reference, "_simulate", counted)
+    # forked workers, so that they count with the patched function (the pool's fork server would
+    # start them from a fresh import)
+    fork = multiprocessing.get_context("fork")
+    monkeypatch.setattr(runner, "process_pool", lambda workers: ProcessPoolExecutor(workers, mp_context=fork))
     specs = [RunSpec("condition-2", "pid", seed, duration_s=0.3 + 0.1 * seed) for seed in range(4)]
     parallel = run_each(specs, workers=2)
     assert calls.read_text().split() == ["600"]  # the longest run's 0.6 s at 1 kHz
@@ -892,3 +900,15 @@ def test_campaign_tutorial_reads_its_table_into_pandas_and_plots_it(tmp_path, ru
     assert table.num_rows == 12
     assert sorted(set(table.column("pad.stiffness_n_per_m").to_pylist())) == [3000, 4666, 9387]
     assert (tmp_path / "pad-stiffness.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_run_pools_start_their_workers_from_a_fork_server():
+    """A forked worker inherits the state of a process that has stepped batches (thread pools
+    without their threads); one under a test runner's worker hung so, building its reference. The
+    pools of run_each, run_many and the reproduction's figures start from a fork server, and their
+    workers import this package themselves."""
+    from microg_env.rollout.runner import process_pool
+
+    with process_pool(1) as pool:
+        assert pool._mp_context.get_start_method() == "forkserver"
+        assert pool.submit(os.getpid).result() != os.getpid()

@@ -1,6 +1,7 @@
 """Learned controllers: hyperparameter files, the NumPy export, the policy as a controller, the
 training pipeline end to end (every artifact, resume, interrupt), and rl-baselines3-zoo as a client."""
 
+import importlib
 import json
 import math
 import signal
@@ -843,27 +844,19 @@ def test_planned_steps_agrees_with_stable_baselines3_itself(algo, kwargs):
     assert planned_steps(params, 0) == model.num_timesteps > 100
 
 
-def _episode_return(env_id: str, act, seed: int) -> float:
-    import gymnasium as gym
-
-    env = gym.make(env_id)
-    observation, _ = env.reset(seed=seed)
-    total, done = 0.0, False
-    while not done:
-        observation, reward, terminated, truncated, _ = env.step(act(observation))
-        total += float(reward)
-        done = terminated or truncated
-    return total
-
-
 @pytest.mark.slow
-def test_the_packaged_recipe_beats_the_zero_residual_return_after_a_short_budget(tmp_path):
+def test_the_packaged_recipe_beats_the_zero_residual_return_after_a_short_budget(tmp_path, monkeypatch):
     """The packaged recipe on MicroGravityLanding-Residual-v2, 300 000 steps (about two minutes on two
     cores; the shipped policy took 10^6): its exported policy earns more than the zero residual
     (``adaptive`` alone, whose mean return is the id's reward_threshold) on the task's own draws,
     paired on test seeds 1000-1019, by more than two standard errors of the paired difference."""
+    import gymnasium as gym
+
     from microg_env.controllers.registry import check_policy_folder
     from microg_env.learning.train import TrainSettings, train
+
+    monkeypatch.syspath_prepend(str(REPO / "training"))
+    episode_return = importlib.import_module("returns_table").episode_return  # the returns table's own
 
     env_id = "MicroGravityLanding-Residual-v2"
     settings = TrainSettings(
@@ -876,8 +869,9 @@ def test_the_packaged_recipe_beats_the_zero_residual_return_after_a_short_budget
     )
     _, policy = check_policy_folder(train(settings) / "policy")
     seeds = range(1000, 1020)
-    learned = [_episode_return(env_id, lambda o: policy.predict(o)[0].reshape(-1), s) for s in seeds]
-    zero = [_episode_return(env_id, lambda o: np.zeros(1, dtype=np.float32), s) for s in seeds]
+    env = gym.make(env_id)
+    learned = [episode_return(env, lambda o: policy.predict(o)[0].reshape(-1), s) for s in seeds]
+    zero = [episode_return(env, lambda o: np.zeros(1, dtype=np.float32), s) for s in seeds]
     differences = np.array(learned) - np.array(zero)
     standard_error = differences.std(ddof=1) / math.sqrt(differences.size)
     assert differences.mean() > 2.0 * standard_error, (differences.mean(), standard_error)
