@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,25 +68,22 @@ class Trajectory:
 
 
 class TrajectoryRecorder:
-    """Channel buffers filled from the environment's ``info`` dictionaries, grown as needed."""
+    """The channels of the environment's ``info`` dictionaries, one row per step."""
 
-    def __init__(self, capacity: int = 4096) -> None:
-        self._buffer = np.zeros((len(CHANNELS), capacity))
-        self._count = 0
+    def __init__(self) -> None:
+        self._rows: list[tuple] = []
+        self._rewards: list[float] = []
+        self._read = operator.itemgetter(*CHANNELS[:-1])
 
     def append(self, info: dict, reward: float = 0.0) -> None:
-        k = self._count
-        if k == self._buffer.shape[1]:
-            self._buffer = np.concatenate([self._buffer, np.zeros_like(self._buffer)], axis=1)
-        column = self._buffer[:, k]
-        for i, name in enumerate(CHANNELS[:-1]):
-            column[i] = info[name]
-        column[-1] = reward
-        self._count = k + 1
+        self._rows.append(self._read(info))
+        self._rewards.append(reward)
 
     def finish(
         self, scenario: Scenario, gravity_m_s2: float, lander_mass_kg: float, termination_reason: str | None = None
     ) -> Trajectory:
-        arrays = {name: self._buffer[i, : self._count].copy() for i, name in enumerate(CHANNELS)}
+        columns = np.array(self._rows, dtype=np.float64).reshape(-1, len(CHANNELS) - 1).T
+        arrays = {name: column.copy() for name, column in zip(CHANNELS, columns, strict=False)}
+        arrays["reward"] = np.array(self._rewards, dtype=np.float64)
         arrays["stage"] = arrays["stage"].astype(int)
         return Trajectory(scenario, gravity_m_s2, lander_mass_kg, termination_reason=termination_reason, **arrays)

@@ -297,6 +297,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from microg_env.rollout.runner import start_fork_server
+
+    if args.workers != 1:  # the workers' imports, figures' included, while this process plans
+        start_fork_server(["microg_env.paper.figures"])
     from microg_env.analysis.plots import figure_class
     from microg_env.paper import report, reproduction
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import math
 import multiprocessing
+import multiprocessing.forkserver
 import os
 import platform
 import time
@@ -34,11 +35,15 @@ from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import apply_imperfections
 from microg_env.rollout.batch import EpisodeSpec, run_batches
-from microg_env.rollout.episode import run_with_metrics
+from microg_env.rollout.episode import run_episode
 from microg_env.rollout.spec import RETUNED_PID, RunSpec
 from microg_env.scenarios import Scenario
-from microg_env.sim.reference import cut_reference, keep_reference, reference_key, simulate_reference
+from microg_env.sim.reference import cut_reference, reference_key, simulate_reference
 from microg_env.trajectory import Trajectory
+
+#: A reference's cost per simulated second as a share of a run's (0.45 s against 1.7 s for a 30 s
+#: condition), to start the longest tasks first.
+REFERENCE_COST = 0.25
 
 
 @cache
@@ -83,57 +88,87 @@ def run(
     ``on_step(env, info)`` after the reset and every step; ``on_progress(steps)``). Raises on a bad
     spec; the result keeps both trajectories."""
     start = time.perf_counter()
+    trajectory, plant = _episode(spec, on_step, on_progress, render)
+    reference = simulate_reference(*plant, float(trajectory.time_s[-1]))
+    return _scored(spec, trajectory, reference, time.perf_counter() - start)
+
+
+def _episode(
+    spec: RunSpec, on_step=None, on_progress=None, render: dict[str, Any] | None = None
+) -> tuple[Trajectory, tuple]:
+    """``spec``'s episode on the single environment, and its plant: the first four arguments of
+    :func:`~microg_env.sim.reference.simulate_reference` (the scenario and parameters of its reset)."""
     env = MicroGravityLandingEnv(**spec.env_kwargs(), **(render or {}))
     try:
-        controller = _controller(spec)
-        trajectory, reference, metrics = run_with_metrics(
-            env, controller, spec.seed, on_step=on_step, on_progress=on_progress
-        )
+        trajectory = run_episode(env, _controller(spec), spec.seed, on_step=on_step, on_progress=on_progress)
+        return trajectory, (env.active_scenario, env.params, env.control_period_s, env.physics_step_s)
     finally:
         env.close()
-    return RunResult(spec, metrics, None, {}, time.perf_counter() - start, versions(), trajectory, reference)
+
+
+def _scored(spec: RunSpec, trajectory: Trajectory, reference: Trajectory, wall_s: float) -> RunResult:
+    """The result of ``spec``'s episode ``trajectory``, scored against ``reference``."""
+    return RunResult(spec, compute_metrics(trajectory, reference), None, {}, wall_s, versions(), trajectory, reference)
 
 
 def process_pool(workers: int) -> ProcessPoolExecutor:
     """A pool of ``workers`` processes forked from a fork server (a fresh process that imported this
-    module once), not from this one: a process that has stepped a batch holds thread pools (MuJoCo's,
-    the numerical libraries') whose threads a forked child lacks, and a ``microg compare`` run in a
-    test runner's worker once hung so, in a forked child building its reference."""
+    module once, :func:`start_fork_server`), not from this one: a process that has stepped a batch
+    holds thread pools (MuJoCo's, the numerical libraries') whose threads a forked child lacks, and
+    a ``microg compare`` run in a test runner's worker once hung so, in a forked child building its
+    reference."""
+    start_fork_server()
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("forkserver"))
+
+
+def start_fork_server(also: Sequence[str] = ()) -> None:
+    """Start the pools' fork server if it is not running, importing this module and the modules
+    ``also`` names: it imports them while this process goes on (a command that will need a pool
+    starts it first)."""
     context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload([__name__])
-    return ProcessPoolExecutor(max_workers=workers, mp_context=context)
+    context.set_forkserver_preload([__name__, *also])
+    multiprocessing.forkserver.ensure_running()
 
 
 def run_each(
     specs: Sequence[RunSpec], workers: int | None = None, progress: Callable[[int], None] | None = None
 ) -> list[RunResult]:
     """:func:`run` of each of ``specs`` (with its trajectories), in order; independent runs on
-    ``workers`` processes at once (default: every core; 1: here, one after another), the longest
-    first, after each ideal reference they need, simulated once (:func:`_shared_references`; a
-    process used to simulate every reference its runs met). ``progress(steps)``: a run's control
-    steps as it ends. Raises on the first bad spec."""
+    ``workers`` processes at once (default: every core; 1: here, one after another), beside each
+    ideal reference they need, simulated once as long as the longest run that needs it: a run cuts
+    its own from it once both have ended (:func:`_shared_references`). ``progress(steps)``: a run's
+    control steps as it ends. Raises on the first bad spec."""
     workers = min(workers or os.cpu_count() or 1, len(specs))
-    order = sorted(range(len(specs)), key=lambda i: -(specs[i].duration_s or math.inf))  # None: the whole schedule
-    results: list[RunResult | None] = [None] * len(specs)
-
-    def done(i: int, result: RunResult) -> None:
-        results[i] = result
-        if progress is not None:
-            progress(len(result.trajectory) - 1)
-
     if workers <= 1:  # one process: its kept references are shared already
-        for i in order:
-            done(i, run(specs[i]))
+        results = []
+        for spec in specs:
+            results.append(run(spec))
+            if progress is not None:
+                progress(len(results[-1].trajectory) - 1)
         return results
+    jobs = _shared_references([_planned_reference(spec) for spec in specs])
+    tasks = [(_reference, job, REFERENCE_COST * job[-1]) for job in jobs.values()]
+    tasks += [(_timed_episode, spec, spec.duration_s or spec.scenario_schedule().duration_s) for spec in specs]
+    outcomes: list = [None] * len(tasks)
     with process_pool(workers) as pool:
-        planned = [_planned_reference(spec) for spec in specs]
-        references = _shared_references(planned, pool)
         futures = {}
-        for i in order:
-            key = None if planned[i] is None else planned[i][0]
-            futures[pool.submit(_run_kept, specs[i], key, references.get(key))] = i
+        for t in sorted(range(len(tasks)), key=lambda t: -tasks[t][2]):  # the longest first
+            futures[pool.submit(tasks[t][0], tasks[t][1])] = t
         for future in as_completed(futures):
-            done(futures[future], future.result())
+            t = futures[future]
+            outcomes[t] = future.result()
+            if progress is not None and t >= len(jobs):
+                progress(len(outcomes[t][0]) - 1)
+    references = dict(zip(jobs, outcomes, strict=False))
+    results = []
+    for spec, (trajectory, plant, wall_s) in zip(specs, outcomes[len(jobs) :], strict=True):
+        shared = references.get(reference_key(*plant))
+        length = float(trajectory.time_s[-1])
+        if shared is None:  # a plant drawn at the reset
+            reference = simulate_reference(*plant, length)
+        else:
+            reference = cut_reference(shared, len(trajectory), plant[0])
+        results.append(_scored(spec, trajectory, reference, wall_s))
     return results
 
 
@@ -149,24 +184,22 @@ def _planned_reference(spec: RunSpec) -> tuple[tuple, list] | None:
     return reference_key(*job[:4]), job
 
 
-def _shared_references(planned: Sequence[tuple[tuple, list] | None], pool) -> dict[tuple, Trajectory]:
-    """The reference of each key in ``planned``, simulated once on ``pool`` as long as the longest
-    run that needs it (before the runs: each then only cuts its own from it)."""
+def _shared_references(planned: Sequence[tuple[tuple, list] | None]) -> dict[tuple, list]:
+    """The :func:`_reference` job of each key in ``planned``, as long as the longest run that needs it."""
     jobs: dict[tuple, list] = {}
     for plan in planned:
         if plan is not None:
             key, job = plan
             kept = jobs.setdefault(key, list(job))
             kept[-1] = max(kept[-1], job[-1])
-    return dict(zip(jobs, pool.map(_reference, jobs.values()), strict=True))
+    return jobs
 
 
-def _run_kept(spec: RunSpec, key: tuple | None, reference: Trajectory | None) -> RunResult:
-    """:func:`run` in a pool's process, ``reference`` (simulated in another) kept under ``key``
-    for it to cut (a run whose reference turns out to differ simulates its own)."""
-    if reference is not None:
-        keep_reference(key, reference)
-    return run(spec)
+def _timed_episode(spec: RunSpec) -> tuple[Trajectory, tuple, float]:
+    """:func:`_episode` of ``spec`` in a pool's process, and its wall time."""
+    start = time.perf_counter()
+    trajectory, plant = _episode(spec)
+    return trajectory, plant, time.perf_counter() - start
 
 
 def run_many(

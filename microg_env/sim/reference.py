@@ -5,6 +5,11 @@ a uniform field m g / (M + m) from the scenario's descent height, the field and 
 when the scenario places a weight, exactly as on an ideal rig. Sampled at the control period, it
 is the yardstick of :func:`microg_env.analysis.metrics.compute_metrics`.
 
+Between contacts the lander flies freely, and MuJoCo's step reduces to ``v += h a``, ``z += h v``
+with a constant ``a``: those steps (most of a landing's) are taken by :func:`_free_flight`, the same
+arithmetic bit for bit without the rest of MuJoCo's pipeline (tests/sim/test_reference.py), and
+MuJoCo steps again :data:`CLEARANCE_M` above the pad, or before a weight is placed.
+
 Many runs share one reference (a PID's gains, the QZS, the balancer, the drive and the sensors do
 not enter it; a shorter run's is a prefix of a longer one's): the last few are kept, by what enters
 them (:func:`reference_key`), and a shorter one is cut from a longer one, bit for bit the same.
@@ -17,6 +22,7 @@ from dataclasses import replace
 import mujoco
 import numpy as np
 
+from microg_env.compiled import jit
 from microg_env.params import RigParams
 from microg_env.scenarios import Scenario
 from microg_env.sim.model import build_pad_test, pad_contact_solref
@@ -24,6 +30,8 @@ from microg_env.trajectory import CHANNELS, Trajectory
 
 #: References kept for reuse (each 30 s one is ~2 MB).
 KEPT = 8
+#: The foot's lowest height in a free-flight step (m): MuJoCo's pad contact begins at 0 (no margin).
+CLEARANCE_M = 1e-3
 _kept: dict[tuple, Trajectory] = {}
 
 
@@ -51,13 +59,13 @@ def simulate_reference(
     kept = _kept.get(key)
     if kept is None or len(kept) < steps + 1:
         kept = _simulate(scenario, params, control_period_s, physics_step_s, steps)
-        keep_reference(key, kept)
+        _keep(key, kept)
     return cut_reference(kept, steps + 1, scenario)
 
 
-def keep_reference(key: tuple, trajectory: Trajectory) -> None:
+def _keep(key: tuple, trajectory: Trajectory) -> None:
     """Keep ``trajectory`` as the reference of ``key`` (:func:`reference_key`) for
-    :func:`simulate_reference` to cut: one simulated here, or in another process."""
+    :func:`simulate_reference` to cut."""
     _kept.pop(key, None)
     _kept[key] = trajectory
     while len(_kept) > KEPT:
@@ -97,15 +105,35 @@ def _simulate(
     placed_kg = place(placed)
     mujoco.mj_forward(model, data)
     time, height, velocity, accel, force, load, stage = (np.zeros(steps + 1) for _ in range(7))
-    for k in range(steps + 1):
-        if k:
-            mujoco.mj_step(model, data, nstep=frame_skip)
-            if placed < len(scenario.loads):
-                due = scenario.loads_due(float(data.qpos[0]), placed)
-                if due != placed:
-                    placed, placed_kg = due, place(due)
-        time[k], height[k], velocity[k], accel[k] = data.time, data.qpos[0], data.qvel[0], data.qacc[0]
+    samples = (time, height, velocity, accel)
+
+    def record(k: int) -> None:
+        time[k], height[k], velocity[k], accel[k] = _state(data)
         force[k], load[k], stage[k] = data.sensordata[force_adr], placed_kg, placed - 1
+
+    record(0)
+    field_known = True  # data.qacc is the acceleration in this stage's field, if the last step was free
+    k = 1
+    while k <= steps:
+        if field_known and data.ncon == 0:
+            flown = _free_flight(
+                *samples, k, steps, frame_skip, model.opt.timestep, _floor(scenario, placed), *_state(data)
+            )
+            if flown:
+                force[k : k + flown], load[k : k + flown], stage[k : k + flown] = 0.0, placed_kg, placed - 1
+                k += flown
+                data.time, data.qpos[0], data.qvel[0] = time[k - 1], height[k - 1], velocity[k - 1]
+                if k > steps:
+                    break
+        mujoco.mj_step(model, data, nstep=frame_skip)
+        field_known = True
+        if placed < len(scenario.loads):
+            due = scenario.loads_due(float(data.qpos[0]), placed)
+            if due != placed:
+                placed, placed_kg = due, place(due)
+                field_known = False  # the field changed after MuJoCo's last step
+        record(k)
+        k += 1
     return Trajectory.from_channels(
         scenario,
         g,
@@ -119,3 +147,39 @@ def _simulate(
         placed_load_kg=load,
         stage=stage,
     )
+
+
+def _floor(scenario: Scenario, placed: int) -> float:
+    """The lowest height of free flight with ``placed`` weights on: the clearance, or the height
+    at which the next weight is placed (:meth:`~microg_env.scenarios.Scenario.loads_due`)."""
+    if placed == len(scenario.loads):
+        return CLEARANCE_M
+    return max(CLEARANCE_M, scenario.loads[placed].height_m)  # only the first weights have none
+
+
+def _state(data: mujoco.MjData) -> tuple[float, float, float, float]:
+    """Time, height, speed and acceleration of the pad test's lander."""
+    return data.time, data.qpos[0], data.qvel[0], data.qacc[0]
+
+
+@jit
+def _free_flight(time, height, velocity, accel, k, steps, frame_skip, h, floor, t, z, v, a):
+    """Control periods ``k``, ``k + 1``, ... of free flight at ``a`` from time ``t``, height ``z``
+    and speed ``v``, sampled into the arrays, as MuJoCo's steps would take them (semi-implicit
+    Euler), while every step starts above ``floor`` and every period ends above it; the number taken."""
+    flown = 0
+    while k + flown <= steps:
+        tn, zn, vn = t, z, v
+        for _ in range(frame_skip):
+            if zn <= floor:
+                return flown
+            vn = vn + h * a
+            zn = zn + h * vn
+            tn = tn + h
+        if zn <= floor:
+            return flown
+        t, z, v = tn, zn, vn
+        i = k + flown
+        time[i], height[i], velocity[i], accel[i] = t, z, v, a
+        flown += 1
+    return flown

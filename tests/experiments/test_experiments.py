@@ -636,8 +636,8 @@ def test_run_each_on_two_processes_gives_the_runs_of_run_in_order():
 @pytest.mark.slow
 def test_run_each_simulates_a_reference_its_runs_share_once(tmp_path, monkeypatch):
     """Runs of one plant and schedule on two processes: each process used to simulate the reference
-    itself (two or more times in all); now it is simulated once, before them, and each run cuts
-    its own from it, bit for bit as run alone."""
+    itself (two or more times in all); now it is simulated once, beside them, and each run's is
+    cut from it, bit for bit as run alone."""
     from concurrent.futures import ProcessPoolExecutor
 
     from microg_env.rollout import runner
