@@ -66,6 +66,19 @@ if "MicroGravityLanding-Residual-v2" not in registry:
         },
         reward_threshold=REWARD_THRESHOLD,
     )
+if "MicroGravityLanding-Residual-v3" not in registry:
+    # v2's task with a second-order high-pass (interface.RESIDUAL_HIGHPASS_ORDERS): through v2's
+    # one stage, an action drifting at a steady rate (as the observations drift through a free
+    # fall) held x a few nm off the base's steady state, a compensation error 3.6 times
+    # feedforward's on the nominal plant; through two stages it decays. A zero action is still
+    # exactly the base controller: the same reward_threshold.
+    register(
+        id="MicroGravityLanding-Residual-v3",
+        entry_point="microg_env.envs.landing:MicroGravityLandingEnv",
+        vector_entry_point="microg_env.envs.vector:MicroGravityLandingVectorEnv",
+        kwargs={**registry["MicroGravityLanding-Residual-v2"].kwargs, "residual_highpass_order": 2},
+        reward_threshold=REWARD_THRESHOLD,
+    )
 
 __all__ = [
     "CONDITIONS",

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from gymnasium import spaces
 
+from microg_env import validate
 from microg_env.params import ScrewStageParams
 
 #: Observation entries and the scale each is divided by (SI units / scale = order one).
@@ -52,9 +53,20 @@ RESIDUAL_LIMIT_M = 1e-6
 #: shapes transients while the base controller keeps the steady state; it is the corner
 #: ``adaptive`` high-passes its cogging error at too.
 RESIDUAL_HIGHPASS_HZ = 2.0
+#: The orders a residual's high-pass may take: 1, a held action decays to 0; 2 (two first-order
+#: stages in cascade), a steadily changing one too. Through one stage an action ramping at r per
+#: second leaves a setpoint of r tau limit: v2's shipped policy ramped 0.04 per second through each
+#: free fall (its observations drift as the lander falls), a steady +6 nm of x at 2 Hz and +3 mm
+#: that Eq. 17's stiffness turns into +0.02 % of compensation error.
+RESIDUAL_HIGHPASS_ORDERS = (1, 2)  # the lowest and highest
 #: The corners a residual's high-pass may take, Hz (0: none; the drive's 100 Hz speed loop, above
 #: which nothing of the residual would pass that the drive follows).
 RESIDUAL_HIGHPASS_RANGE_HZ = (0.0, 100.0)
+
+
+def highpass_order(order: object) -> int:
+    """A residual high-pass's order (:data:`RESIDUAL_HIGHPASS_ORDERS`), or a FieldError naming it."""
+    return validate.integer("residual_highpass_order", order, *RESIDUAL_HIGHPASS_ORDERS)
 
 
 def highpass_gain(corner_hz: float, period_s: float) -> float | None:
@@ -73,16 +85,27 @@ def residual_setpoint(
     gain: float | None,
     last_action: np.ndarray,
     last_setpoint_m: np.ndarray,
+    last_stage_m: np.ndarray | None = None,
 ) -> np.ndarray:
     """The x setpoints (m) that residual ``actions`` of rigs ``ids`` stand for: ``action *
     limit_m``, or with a high-pass ``gain`` (:func:`highpass_gain`) that passed through the filter
     y_n = a (y_(n-1) + (u_n - u_(n-1)) limit), whose state per rig is ``last_action`` (u) and
     ``last_setpoint_m`` (y), both 0 when an episode starts: a held action decays to a zero
-    setpoint, so a residual cannot move the steady state its base controller holds."""
+    setpoint, so a residual cannot move the steady state its base controller holds. With
+    ``last_stage_m`` (the first stage's last output, 0 at the start) the second-order cascade:
+    the first stage's output w goes through a second, y_n = a (y_(n-1) + w_n - w_(n-1)), so an
+    action changing at a steady rate decays to a zero setpoint as well."""
     if gain is None:
         return actions * limit_m
-    setpoint = gain * (last_setpoint_m[ids] + (actions - last_action[ids]) * limit_m)
+    stage = gain * (
+        (last_setpoint_m if last_stage_m is None else last_stage_m)[ids] + (actions - last_action[ids]) * limit_m
+    )
     last_action[ids] = actions
+    if last_stage_m is None:
+        last_setpoint_m[ids] = stage
+        return stage
+    setpoint = gain * (last_setpoint_m[ids] + stage - last_stage_m[ids])
+    last_stage_m[ids] = stage
     last_setpoint_m[ids] = setpoint
     return setpoint
 

@@ -61,7 +61,14 @@ def policy_actor(env_id: str, name: str) -> Callable[[np.ndarray], np.ndarray]:
     card, policy = check_policy_folder(folder)
     env = card["env_kwargs"]
     task = gym.spec(env_id).kwargs
-    for key in ("action_mode", "base_controller", "decision_period", "residual_limit_m", "residual_highpass_hz"):
+    for key in (
+        "action_mode",
+        "base_controller",
+        "decision_period",
+        "residual_limit_m",
+        "residual_highpass_hz",
+        "residual_highpass_order",
+    ):
         if env.get(key) != task.get(key):
             raise ValueError(
                 f"policy {name!r} was trained with {key} {env.get(key)!r}, not {env_id}'s {task.get(key)!r}"

@@ -37,6 +37,7 @@ from microg_env.interface import (
     RESIDUAL_HIGHPASS_RANGE_HZ,
     RESIDUAL_LIMIT_M,
     highpass_gain,
+    highpass_order,
     residual_setpoint,
 )
 from microg_env.params import CONTROL_PERIOD_S
@@ -160,6 +161,7 @@ class PolicyController(VectorController):
         "_base_command_m_s": 0.0,
         "_filtered_action": 0.0,
         "_setpoint_m": 0.0,
+        "_stage_m": 0.0,
     }
 
     def __init__(
@@ -171,6 +173,7 @@ class PolicyController(VectorController):
         residual_limit_m: float = RESIDUAL_LIMIT_M,
         residual_highpass_hz: float = 0.0,
         control_period_s: float = CONTROL_PERIOD_S,
+        residual_highpass_order: int = 1,
     ) -> None:
         super().__init__(*(() if base is None else (base,)))
         self.policy = policy
@@ -180,6 +183,7 @@ class PolicyController(VectorController):
         self.residual_limit_m = validate.positive("residual_limit_m", residual_limit_m, "m", 1e-3)
         highpass_hz = validate.between("residual_highpass_hz", residual_highpass_hz, *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
         self._residual_gain = highpass_gain(highpass_hz, self.decision_period * control_period_s)
+        self._second_stage = highpass_order(residual_highpass_order) == 2
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         due = np.empty(ids.size, dtype=np.bool_)
@@ -200,6 +204,7 @@ class PolicyController(VectorController):
                     self._residual_gain,
                     self._filtered_action,
                     self._setpoint_m,
+                    self._stage_m if self._second_stage else None,
                 )
         if self.base is None:
             return self._action[ids]

@@ -21,7 +21,7 @@ from microg_env.controllers.base import Controller
 from microg_env.controllers.feedforward import AdaptiveFeedforward, Feedforward, Oracle
 from microg_env.controllers.pid import PID, load_gains
 from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy, PolicyController
-from microg_env.interface import ACTION_MODES, RESIDUAL_HIGHPASS_RANGE_HZ, RESIDUAL_LIMIT_M
+from microg_env.interface import ACTION_MODES, RESIDUAL_HIGHPASS_RANGE_HZ, RESIDUAL_LIMIT_M, highpass_order
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, RigParams
 from microg_env.validate import FieldError
 
@@ -117,6 +117,7 @@ def _check_deployment(env: dict[str, Any]) -> None:
     validate.between("control_period_s", env.get("control_period_s", CONTROL_PERIOD_S), *CONTROL_PERIOD_RANGE_S, "s")
     validate.positive("residual_limit_m", env.get("residual_limit_m", RESIDUAL_LIMIT_M), "m", 1e-3)
     validate.between("residual_highpass_hz", env.get("residual_highpass_hz", 0.0), *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
+    highpass_order(env.get("residual_highpass_order", 1))
 
 
 def shipped_policy_folder(name: str) -> Path:
@@ -161,4 +162,5 @@ def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyContro
         residual_limit_m=float(env_kwargs.get("residual_limit_m", RESIDUAL_LIMIT_M)),
         residual_highpass_hz=float(env_kwargs.get("residual_highpass_hz", 0.0)),
         control_period_s=period,
+        residual_highpass_order=int(env_kwargs.get("residual_highpass_order", 1)),
     )

@@ -66,6 +66,7 @@ TASK_ATTRIBUTES = (
     "base_controller",
     "residual_limit_m",
     "residual_highpass_hz",
+    "residual_highpass_order",
     "reward_scale_m",
     "reset_noise_scale",
     "xml_file",
@@ -198,10 +199,12 @@ class LandingCore:
         self.pending_command = np.zeros(n)  # m/s, reaching the drive at the next period (control delay)
         self.command = np.zeros(n)  # m/s, the command the drive last received
         self.base_command = np.zeros(n)  # m/s, the base controller's last command (residual mode)
-        # The residual's high-pass (interface.residual_setpoint): its last input and output.
+        # The residual's high-pass (interface.residual_setpoint): its last input and output, and
+        # its first stage's last output if it has two.
         self._residual_gain = highpass_gain(self.residual_highpass_hz, self.decision_period * self.control_period_s)
         self.residual_action = np.zeros(n)
         self.residual_setpoint_m = np.zeros(n)
+        self.residual_stage_m = np.zeros(n) if self.residual_highpass_order == 2 else None
         self.position_ref = np.zeros(n)  # the drive's interpolated position reference, motor rad
         self.drift_n_per_s = np.zeros(n)
         self.x_stiffness = np.zeros(n)
@@ -317,6 +320,8 @@ class LandingCore:
         self.base_command[ids] = 0.0
         self.residual_action[ids] = 0.0
         self.residual_setpoint_m[ids] = 0.0
+        if self.residual_stage_m is not None:
+            self.residual_stage_m[ids] = 0.0
         self.fresh[ids] = True
         self._noise.restart(ids)
         if self.base is not None:
@@ -358,7 +363,13 @@ class LandingCore:
         """
         if self.base is not None:
             self.base.setpoint_m[ids] = residual_setpoint(
-                actions, ids, self.residual_limit_m, self._residual_gain, self.residual_action, self.residual_setpoint_m
+                actions,
+                ids,
+                self.residual_limit_m,
+                self._residual_gain,
+                self.residual_action,
+                self.residual_setpoint_m,
+                self.residual_stage_m,
             )
         n = ids.size
         total, periods = np.zeros(n), np.zeros(n, dtype=np.int64)

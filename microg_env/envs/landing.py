@@ -53,7 +53,8 @@ class MicroGravityLandingEnv(gym.Env):
       ``oracle``, which is told each episode's plant) that commands the
       drive every control period from the latest observation. An action of 0 is the base controller.
       With ``residual_highpass_hz`` the setpoint is the action high-passed
-      (:func:`~microg_env.interface.residual_setpoint`): a held action decays to 0.
+      (:func:`~microg_env.interface.residual_setpoint`): a held action decays to 0, and with
+      ``residual_highpass_order=2`` a steadily changing one as well.
 
     Out-of-range values are clipped to [-1, 1]; NaN, infinite, non-numeric or wrongly shaped
     actions raise ``ValueError``. The drive interpolates its position reference at the commanded
@@ -114,7 +115,8 @@ class MicroGravityLandingEnv(gym.Env):
     | ``action_mode`` | ``"speed"`` or ``"residual"`` (see Action Space) |
     | ``base_controller`` | the controller a residual action moves the setpoint of |
     | ``residual_limit_m`` | the setpoint an action of +-1 stands for, m |
-    | ``residual_highpass_hz`` | corner of the residual's first-order high-pass, Hz (0: none) |
+    | ``residual_highpass_hz`` | corner of the residual's high-pass, Hz (0: none) |
+    | ``residual_highpass_order`` | that high-pass's first-order stages in cascade: 1 or 2 |
     | ``imperfections`` | which non-ideal effects are on (or their flags as a dict) |
     | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
     | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force and accelerometer read 0) |

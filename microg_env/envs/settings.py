@@ -16,7 +16,13 @@ from typing import Any
 from microg_env import validate
 from microg_env.controllers.registry import BASELINES
 from microg_env.imperfections import DomainRandomization, Imperfections
-from microg_env.interface import ACTION_MODES, RESIDUAL_HIGHPASS_RANGE_HZ, RESIDUAL_LIMIT_M, SENSOR_SETS
+from microg_env.interface import (
+    ACTION_MODES,
+    RESIDUAL_HIGHPASS_RANGE_HZ,
+    RESIDUAL_LIMIT_M,
+    SENSOR_SETS,
+    highpass_order,
+)
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import Scenario, ScenarioSampler
 from microg_env.scenarios import condition as paper_condition
@@ -41,6 +47,7 @@ class TaskSettings:
     base_controller: str = "pid"
     residual_limit_m: float = RESIDUAL_LIMIT_M
     residual_highpass_hz: float = 0.0
+    residual_highpass_order: int = 1
     imperfections: Imperfections | Mapping | None = None
     domain_randomization: DomainRandomization | Mapping | bool | str | None = None
     sensor_set: str = "extended"
@@ -73,6 +80,7 @@ class TaskSettings:
         put("residual_limit_m", validate.positive("residual_limit_m", self.residual_limit_m, "m", 1e-3))
         corner = validate.between("residual_highpass_hz", self.residual_highpass_hz, *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
         put("residual_highpass_hz", corner)
+        put("residual_highpass_order", highpass_order(self.residual_highpass_order))
         put("reward_scale_m", validate.between("reward_scale_m", self.reward_scale_m, 1e-12, 1e-3, "m"))
         put("reset_noise_scale", validate.non_negative("reset_noise_scale", self.reset_noise_scale, "m"))
         if self.scenario_sampler is not None and self.reset_noise_scale > 0:

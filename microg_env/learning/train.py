@@ -53,7 +53,12 @@ from microg_env.validate import fault, shown
 #: ``seed`` to ``seed + n_envs - 1``; ``microg compare`` tests on seeds from 1000).
 VALIDATION_SEED = 500
 #: The environments ``microg train`` trains on.
-ENV_IDS = ("MicroGravityLanding-v1", "MicroGravityLanding-Residual-v1", "MicroGravityLanding-Residual-v2")
+ENV_IDS = (
+    "MicroGravityLanding-v1",
+    "MicroGravityLanding-Residual-v1",
+    "MicroGravityLanding-Residual-v2",
+    "MicroGravityLanding-Residual-v3",
+)
 #: Folders and files of a run.
 CHECKPOINTS, LATEST, POLICY, EVALUATIONS, LOG = "checkpoints", "latest.json", "policy", "evaluations.json", "train.log"
 

@@ -666,6 +666,7 @@ def _policy_cases():
         "decision_period",
         "residual_limit_m",
         "residual_highpass_hz",
+        "residual_highpass_order",
         "control_period_s",
     ):
         for value in BAD_VALUES:

@@ -23,7 +23,7 @@ from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.envs.settings import TaskSettings
 from microg_env.envs.vector import MicroGravityLandingVectorEnv
 from microg_env.imperfections import DomainRandomization
-from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES, Readings
+from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES, Readings, highpass_gain
 from microg_env.params import RigParams
 from microg_env.sim.model import drive_inertia_kg_m2
 
@@ -292,6 +292,35 @@ def test_a_high_passed_residual_decays_to_the_base_controllers_steady_state():
         assert abs(np.mean(xs[100:])) < 0.05e-6  # and x is back at the base's 0 within 0.5 s
 
 
+def test_a_second_order_high_pass_lets_neither_a_held_nor_a_ramping_action_hold_x():
+    """``residual_highpass_order=2``: two first-order stages in cascade. A ramping action (as a
+    policy's, whose observations drift through a free fall) leaves a steady setpoint of
+    r tau limit through one stage (v2's shipped policy: +6 nm, +0.02 % compensation error) and a
+    decaying one through two; each setpoint is the cascade's recursion computed here."""
+    gain = highpass_gain(2.0, 5e-3)
+    rate = 0.002  # per decision (0.4 per second)
+    late = {}
+    for order in (1, 2):
+        env = MicroGravityLandingEnv(
+            condition=2, action_mode="residual", base_controller="feedforward", decision_period=5,
+            residual_highpass_hz=2.0, residual_highpass_order=order, residual_limit_m=3e-6,
+        )  # fmt: skip
+        env.reset(seed=0)
+        setpoints, expected, u, w, y = [], [], 0.0, 0.0, 0.0
+        for k in range(1, 401):  # 2 s
+            action = np.float32(rate * k)
+            setpoints.append(env.step(np.array([action]))[4]["setpoint_m"])
+            stage = gain * (w + (float(action) - u) * 3e-6)
+            y = stage if order == 1 else gain * (y + stage - w)
+            u, w = float(action), stage
+            expected.append(y)
+        np.testing.assert_allclose(setpoints, expected, rtol=1e-12, atol=1e-21)
+        late[order] = np.mean(setpoints[300:])
+    tau = 1.0 / (2.0 * math.pi * 2.0)
+    assert late[1] == pytest.approx(rate / 5e-3 * tau * 3e-6, rel=0.05)  # r tau limit: 38 nm
+    assert abs(late[2]) < 0.01 * late[1]
+
+
 def test_the_decision_period_holds_the_action_and_steps_the_control_periods():
     env = MicroGravityLandingEnv(condition=1, decision_period=5, action_mode="residual", base_controller="pid")
     _, info = env.reset(seed=0)
@@ -403,6 +432,9 @@ def test_bad_actions_raise(action):
         ({"residual_limit_m": 1.0}, "residual_limit_m"),
         ({"residual_highpass_hz": -1.0}, "residual_highpass_hz"),
         ({"residual_highpass_hz": 500.0}, "residual_highpass_hz"),
+        ({"residual_highpass_order": 3}, "residual_highpass_order"),
+        ({"residual_highpass_order": 2.0}, "residual_highpass_order"),
+        ({"residual_highpass_order": True}, "residual_highpass_order"),
         ({"scenario_sampler": "testing"}, "scenario_sampler"),
         ({"domain_randomization": {"pad_stiffness": 2.0}}, "pad_stiffness"),
         ({"domain_randomization": "drive"}, "domain_randomization"),

@@ -136,14 +136,16 @@ def _random_policy(seed: int) -> MLPPolicy:
     )
 
 
-@pytest.mark.parametrize("highpass_hz", [0.0, 2.0])
-def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpass_hz):
+@pytest.mark.parametrize(("highpass_hz", "order"), [(0.0, 1), (2.0, 1), (2.0, 2)])
+def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpass_hz, order):
     """The deployed composition (policy + base, decision period, rebuilt observation, the
     residual's high-pass) is the training environment's, bit for bit, for a policy that moves the
     setpoint every decision; the setpoints are the actions, or at 2 Hz the actions through
-    y_n = a (y_(n-1) + (u_n - u_(n-1)) 1 um) with a = tau / (tau + 5 ms), tau = 1 / (2 pi 2 Hz)."""
+    y_n = a (y_(n-1) + (u_n - u_(n-1)) 1 um) with a = tau / (tau + 5 ms), tau = 1 / (2 pi 2 Hz),
+    once or twice in cascade."""
     policy = _random_policy(3)
-    residual_env = MicroGravityLandingEnv(condition=3, **RESIDUAL, residual_highpass_hz=highpass_hz)
+    highpass = {"residual_highpass_hz": highpass_hz, "residual_highpass_order": order}
+    residual_env = MicroGravityLandingEnv(condition=3, **RESIDUAL, **highpass)
     observation, info = residual_env.reset(seed=4)
     xs, commands, actions, setpoints = [], [], [], []
     for _ in range(600):  # 3 s
@@ -153,15 +155,20 @@ def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpa
         commands.append(info["command_m_s"])
         actions.append(float(action[0]))
         setpoints.append(info["setpoint_m"])
-    controller = deployed_controller(policy, RESIDUAL | {"residual_highpass_hz": highpass_hz})
+    controller = deployed_controller(policy, RESIDUAL | highpass)
     deployed = run_episode(MicroGravityLandingEnv(condition=3), controller, seed=4, duration_s=3.0)
     np.testing.assert_array_equal(deployed.x_m[5::5], np.array(xs))
     np.testing.assert_array_equal(deployed.command_m_s[5::5], np.array(commands))
     assert np.ptp(np.array(xs)) > 1e-7  # the policy did move x
-    expected, last_u, last_y = [], 0.0, 0.0
+    expected, last_u, last_w, last_y = [], 0.0, 0.0, 0.0
     tau = 1.0 / (2.0 * math.pi * highpass_hz) if highpass_hz else math.inf
     for u in actions:
-        last_y = u * 1e-6 if highpass_hz == 0 else tau / (tau + 5e-3) * (last_y + (u - last_u) * 1e-6)
+        if highpass_hz == 0:
+            last_y = u * 1e-6
+        else:
+            stage = tau / (tau + 5e-3) * (last_w + (u - last_u) * 1e-6)
+            last_y = stage if order == 1 else tau / (tau + 5e-3) * (last_y + stage - last_w)
+            last_w = stage
         last_u = u
         expected.append(last_y)
     np.testing.assert_allclose(setpoints, expected, rtol=1e-9, atol=1e-18)
@@ -729,6 +736,11 @@ RESIDUAL_ID = "MicroGravityLanding-Residual-v1"
 RESIDUAL_IDS = {
     RESIDUAL_ID: {"residual_limit_m": 1e-6},
     "MicroGravityLanding-Residual-v2": {"residual_limit_m": 3e-6, "residual_highpass_hz": 2.0},
+    "MicroGravityLanding-Residual-v3": {
+        "residual_limit_m": 3e-6,
+        "residual_highpass_hz": 2.0,
+        "residual_highpass_order": 2,
+    },
 }
 
 
