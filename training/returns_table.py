@@ -1,10 +1,11 @@
-"""The returns table of the learning task (MicroGravityLanding-Residual-v2 or -v1): what each controller earns.
+"""The returns table of the learning task (MicroGravityLanding-Residual-v3, -v2 or -v1): what each controller earns.
 
 Every controller runs in the residual environment with the id's defaults (a residual x setpoint on
-`adaptive`, held 5 control periods: +-1 um in v1, +-3 um high-passed at 2 Hz in v2; plants and drives drawn by
-``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero residual`` (`adaptive`
-alone), the other classical controllers as the base with a zero residual (an all-zero residual is
-exactly its base) and learned policies (shipped names or policy folders trained on this task). A
+`adaptive`, held 5 control periods: +-1 um in v1, +-3 um high-passed at 2 Hz in v2, twice in v3;
+plants and drives drawn by ``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero
+residual`` (`adaptive` alone), the other classical controllers as the base with a zero residual
+(an all-zero residual is exactly its base) and learned policies (shipped names or policy folders
+trained on this task). A
 return is the episode's undiscounted sum of rewards; the table gives mean ± std over seeds from
 1000, the comparison's test seeds. ``training`` draws the id's own schedules; the other scenarios
 are the comparison's, outside the training draws. The id's ``reward_threshold`` is the zero
@@ -30,7 +31,7 @@ from microg_env.experiments.comparison import TEST_SEED
 from microg_env.scenarios import comparison_scenarios
 
 #: The learning task's ids, the newest first (the default).
-ENV_IDS = ("MicroGravityLanding-Residual-v2", "MicroGravityLanding-Residual-v1")
+ENV_IDS = ("MicroGravityLanding-Residual-v3", "MicroGravityLanding-Residual-v2", "MicroGravityLanding-Residual-v1")
 #: The base controllers run with a zero residual, by the row's name.
 BASE = gym.spec(ENV_IDS[0]).kwargs["base_controller"]  # the ids' own, under a zero residual
 BASES = {"pid": "pid", "feedforward": "feedforward", f"zero residual ({BASE})": BASE, "oracle": "oracle"}

@@ -1,12 +1,13 @@
 """Tutorial 2: train a learned residual for a few minutes and compare it, paired on the same plants
 and seeds, with the classical controllers it should beat.
 
-The task is the registered ``MicroGravityLanding-Residual-v2``: a policy adds a setpoint within
-±3 µm, high-passed at 2 Hz, to ``adaptive``, the best deployable classical controller, on plants
-and drives drawn at every reset. Training and the comparison use the package's own recipe and tools (``microg train``
-and ``microg compare`` run the same code). With the default 100 000 steps this takes a few minutes
-on two CPU cores and is far too short to learn anything useful: the point is the workflow and
-an honest yardstick, not a result (the shipped policy trained for 10^6 steps; see docs/controllers.md).
+The task is the registered ``MicroGravityLanding-Residual-v3``: a policy adds a setpoint within
+±3 µm, high-passed at 2 Hz by two stages, to ``adaptive``, the best deployable classical
+controller, on plants and drives drawn at every reset. Training and the comparison use the
+package's own recipe and tools (``microg train`` and ``microg compare`` run the same code).
+With the default 100 000 steps this takes a few minutes on two CPU cores and is far too short to
+learn anything useful: the point is the workflow and an honest yardstick, not a result (the
+shipped policy trained for 10^6 steps; see docs/controllers.md).
 
 Run it as a script (``python docs/tutorials/02_train_residual.py``) or as a notebook (``# %%``
 cells). It needs the train and report extras: ``pip install 'microg-env[train,report]'``.
@@ -32,7 +33,7 @@ from microg_env.learning.train import TrainSettings, train
 
 torch.set_num_threads(1)  # a 64x64 policy: threads cost more than they give
 settings = TrainSettings(
-    env_id="MicroGravityLanding-Residual-v2",
+    env_id="MicroGravityLanding-Residual-v3",
     timesteps=args.timesteps,
     log_folder=str(out / "logs"),
     eval_freq=max(args.timesteps // 2, 1),

@@ -9,7 +9,7 @@ import pytest
 
 from microg_env.analysis.summary import summarise
 from microg_env.cli import main
-from microg_env.controllers.registry import policy_card, shipped_policy_folder
+from microg_env.controllers.registry import load_policy, policy_card, shipped_policy_folder
 from microg_env.experiments.comparison import QUANTITIES, TEST_SEED, compare
 from microg_env.experiments.comparison_report import COMPARISON_FILES, render_markdown, write
 from microg_env.learning.hyperparams import load as load_hyperparams
@@ -171,15 +171,17 @@ def test_the_shipped_policy_records_its_training():
 
 def test_the_policy_shipped_for_the_registered_task_records_its_training():
     """residual-ppo-adaptive: the best of five seeds of the packaged recipe on
-    MicroGravityLanding-Residual-v2 by the control cost on 40 validation episodes (docs/controllers.md
-    gives all five and why not by training's own five)."""
+    MicroGravityLanding-Residual-v3 by the control cost on 40 validation episodes (docs/controllers.md
+    gives all five and why not by training's own five), deployed through the task's second-order
+    high-pass."""
     folder = shipped_policy_folder("residual-ppo-adaptive")
     card = policy_card(folder)
-    assert card["command"].startswith("microg train --env MicroGravityLanding-Residual-v2 --seed 1 ")
-    assert card["env_id"] == "MicroGravityLanding-Residual-v2"
-    assert card["hyperparams"] == load_hyperparams("ppo", "MicroGravityLanding-Residual-v2").as_config()
+    assert card["command"].startswith("microg train --env MicroGravityLanding-Residual-v3 --seed 1 ")
+    assert card["env_id"] == "MicroGravityLanding-Residual-v3"
+    assert card["hyperparams"] == load_hyperparams("ppo", "MicroGravityLanding-Residual-v3").as_config()
     assert card["env_kwargs"]["base_controller"] == "adaptive"
-    assert card["env_kwargs"]["residual_highpass_hz"] == 2.0  # deployed through the task's high-pass
+    assert (card["env_kwargs"]["residual_highpass_hz"], card["env_kwargs"]["residual_highpass_order"]) == (2.0, 2)
+    assert load_policy(folder, 1e-3)._second_stage
     totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
     assert totals["timesteps"] >= card["target_timesteps"] == 1_000_000
     assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine

@@ -858,7 +858,7 @@ def test_planned_steps_agrees_with_stable_baselines3_itself(algo, kwargs):
 
 @pytest.mark.slow
 def test_the_packaged_recipe_beats_the_zero_residual_return_after_a_short_budget(tmp_path, monkeypatch):
-    """The packaged recipe on MicroGravityLanding-Residual-v2, 300 000 steps (about two minutes on two
+    """The packaged recipe on MicroGravityLanding-Residual-v3, 300 000 steps (about two minutes on two
     cores; the shipped policy took 10^6): its exported policy earns more than the zero residual
     (``adaptive`` alone, whose mean return is the id's reward_threshold) on the task's own draws,
     paired on test seeds 1000-1019, by more than two standard errors of the paired difference."""
@@ -870,7 +870,7 @@ def test_the_packaged_recipe_beats_the_zero_residual_return_after_a_short_budget
     monkeypatch.syspath_prepend(str(REPO / "training"))
     episode_return = importlib.import_module("returns_table").episode_return  # the returns table's own
 
-    env_id = "MicroGravityLanding-Residual-v2"
+    env_id = "MicroGravityLanding-Residual-v3"
     settings = TrainSettings(
         env_id=env_id,
         timesteps=300_000,
