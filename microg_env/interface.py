@@ -47,7 +47,7 @@ ACTION_MODES = ("speed", "residual")
 #: The x setpoint that the action +-1 stands for in the residual action mode, m (the default of
 #: the environment's ``residual_limit_m``).
 RESIDUAL_LIMIT_M = 1e-6
-#: The corner of the residual's high-pass in ``MicroGravityLanding-Residual-v2``, Hz. Its time
+#: The corner of the residual's high-pass in ``MicroGravityLanding-Residual-v2`` and -v3, Hz. Its time
 #: constant, 1/(2 pi 2 Hz) = 80 ms, lets a held residual decay by e^-2.5 within the 0.2 s that
 #: the descent fit waits after a weight is placed (analysis.metrics.SETTLE_S), so the residual
 #: shapes transients while the base controller keeps the steady state; it is the corner
