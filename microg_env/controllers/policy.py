@@ -151,7 +151,8 @@ class PolicyController(VectorController):
     action is a setpoint for x, ``action * residual_limit_m``, that the base holds while commanding
     the drive every period (the residual mode of ``MicroGravityLanding-v1``); without one the action
     is the speed command, held. With ``residual_highpass_hz`` the setpoint is the action high-passed
-    (:func:`~microg_env.interface.residual_setpoint`), as the environment's. An all-zero residual is
+    (:func:`~microg_env.interface.residual_setpoint`, ``residual_highpass_order`` stages), as the
+    environment's. An all-zero residual is
     exactly the base controller. Many rigs' observations go through the policy in one batch.
     """
 

@@ -162,5 +162,5 @@ def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyContro
         residual_limit_m=float(env_kwargs.get("residual_limit_m", RESIDUAL_LIMIT_M)),
         residual_highpass_hz=float(env_kwargs.get("residual_highpass_hz", 0.0)),
         control_period_s=period,
-        residual_highpass_order=int(env_kwargs.get("residual_highpass_order", 1)),
+        residual_highpass_order=env_kwargs.get("residual_highpass_order", 1),
     )

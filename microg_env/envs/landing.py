@@ -116,7 +116,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``base_controller`` | the controller a residual action moves the setpoint of |
     | ``residual_limit_m`` | the setpoint an action of +-1 stands for, m |
     | ``residual_highpass_hz`` | corner of the residual's high-pass, Hz (0: none) |
-    | ``residual_highpass_order`` | that high-pass's first-order stages in cascade: 1 or 2 |
+    | ``residual_highpass_order`` | its first-order stages in cascade: 1 or 2 (none without a corner) |
     | ``imperfections`` | which non-ideal effects are on (or their flags as a dict) |
     | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
     | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force and accelerometer read 0) |

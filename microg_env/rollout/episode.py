@@ -76,16 +76,17 @@ def run_episode(
     return recorder.finish(rig_env.active_scenario, rig_env.params.gravity_m_s2, rig_env.params.lander.mass_kg, reason)
 
 
+def plant_of(env: gym.Env) -> tuple:
+    """What the ideal reference of the episode ``env`` just ran depends on: the first four arguments
+    of :func:`~microg_env.sim.reference.simulate_reference` (the scenario and parameters of its reset
+    and its steps)."""
+    rig_env = _rig_env(env)
+    return rig_env.active_scenario, rig_env.params, rig_env.control_period_s, rig_env.physics_step_s
+
+
 def reference_for(env: gym.Env, trajectory: Trajectory) -> Trajectory:
     """The ideal-microgravity landing of the episode ``env`` just ran, as long as ``trajectory``."""
-    rig_env = _rig_env(env)
-    return simulate_reference(
-        rig_env.active_scenario,
-        rig_env.params,
-        rig_env.control_period_s,
-        rig_env.physics_step_s,
-        float(trajectory.time_s[-1]),
-    )
+    return simulate_reference(*plant_of(env), float(trajectory.time_s[-1]))
 
 
 def run_with_metrics(

@@ -35,7 +35,7 @@ from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import apply_imperfections
 from microg_env.rollout.batch import EpisodeSpec, run_batches
-from microg_env.rollout.episode import run_episode
+from microg_env.rollout.episode import plant_of, run_episode
 from microg_env.rollout.spec import RETUNED_PID, RunSpec
 from microg_env.scenarios import Scenario
 from microg_env.sim.reference import cut_reference, reference_key, simulate_reference
@@ -101,7 +101,7 @@ def _episode(
     env = MicroGravityLandingEnv(**spec.env_kwargs(), **(render or {}))
     try:
         trajectory = run_episode(env, _controller(spec), spec.seed, on_step=on_step, on_progress=on_progress)
-        return trajectory, (env.active_scenario, env.params, env.control_period_s, env.physics_step_s)
+        return trajectory, plant_of(env)
     finally:
         env.close()
 
@@ -146,14 +146,17 @@ def run_each(
             if progress is not None:
                 progress(len(results[-1].trajectory) - 1)
         return results
-    jobs = _shared_references([_planned_reference(spec) for spec in specs])
-    tasks = [(_reference, job, REFERENCE_COST * job[-1]) for job in jobs.values()]
-    tasks += [(_timed_episode, spec, spec.duration_s or spec.scenario_schedule().duration_s) for spec in specs]
+    planned = [_planned_reference(spec) for spec in specs]
+    jobs = _shared_references(planned)
+    tasks = [(_reference, (job,), REFERENCE_COST * job[-1]) for job in jobs.values()]
+    for spec, plan in zip(specs, planned, strict=True):
+        length = spec.duration_s or spec.scenario_schedule().duration_s
+        tasks.append((_timed_episode, (spec, plan is None), length * (1 if plan else 1 + REFERENCE_COST)))
     outcomes: list = [None] * len(tasks)
     with process_pool(workers) as pool:
         futures = {}
         for t in sorted(range(len(tasks)), key=lambda t: -tasks[t][2]):  # the longest first
-            futures[pool.submit(tasks[t][0], tasks[t][1])] = t
+            futures[pool.submit(tasks[t][0], *tasks[t][1])] = t
         for future in as_completed(futures):
             t = futures[future]
             outcomes[t] = future.result()
@@ -161,13 +164,13 @@ def run_each(
                 progress(len(outcomes[t][0]) - 1)
     references = dict(zip(jobs, outcomes, strict=False))
     results = []
-    for spec, (trajectory, plant, wall_s) in zip(specs, outcomes[len(jobs) :], strict=True):
-        shared = references.get(reference_key(*plant))
-        length = float(trajectory.time_s[-1])
-        if shared is None:  # a plant drawn at the reset
-            reference = simulate_reference(*plant, length)
-        else:
-            reference = cut_reference(shared, len(trajectory), plant[0])
+    for spec, (trajectory, plant, reference, wall_s) in zip(specs, outcomes[len(jobs) :], strict=True):
+        if reference is None:  # cut from the shared one (or, were the plant not the one planned, its own)
+            shared = references.get(reference_key(*plant))
+            if shared is None:
+                reference = simulate_reference(*plant, float(trajectory.time_s[-1]))
+            else:
+                reference = cut_reference(shared, len(trajectory), plant[0])
         results.append(_scored(spec, trajectory, reference, wall_s))
     return results
 
@@ -195,11 +198,13 @@ def _shared_references(planned: Sequence[tuple[tuple, list] | None]) -> dict[tup
     return jobs
 
 
-def _timed_episode(spec: RunSpec) -> tuple[Trajectory, tuple, float]:
-    """:func:`_episode` of ``spec`` in a pool's process, and its wall time."""
+def _timed_episode(spec: RunSpec, with_reference: bool) -> tuple[Trajectory, tuple, Trajectory | None, float]:
+    """:func:`_episode` of ``spec`` in a pool's process, its reference if ``with_reference`` (a plant
+    drawn at the reset, which no shared reference can be planned for), and its wall time."""
     start = time.perf_counter()
     trajectory, plant = _episode(spec)
-    return trajectory, plant, time.perf_counter() - start
+    reference = simulate_reference(*plant, float(trajectory.time_s[-1])) if with_reference else None
+    return trajectory, plant, reference, time.perf_counter() - start
 
 
 def run_many(

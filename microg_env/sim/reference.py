@@ -17,6 +17,7 @@ them (:func:`reference_key`), and a shorter one is cut from a longer one, bit fo
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import mujoco
@@ -112,10 +113,11 @@ def _simulate(
         force[k], load[k], stage[k] = data.sensordata[force_adr], placed_kg, placed - 1
 
     record(0)
+    flies = _flies_as_mujoco(model, data, frame_skip)
     field_known = True  # data.qacc is the acceleration in this stage's field, if the last step was free
     k = 1
     while k <= steps:
-        if field_known and data.ncon == 0:
+        if flies and field_known and data.ncon == 0:
             flown = _free_flight(
                 *samples, k, steps, frame_skip, model.opt.timestep, _floor(scenario, placed), *_state(data)
             )
@@ -149,6 +151,27 @@ def _simulate(
     )
 
 
+def _flies_as_mujoco(model: mujoco.MjModel, data: mujoco.MjData, frame_skip: int) -> bool:
+    """Whether :func:`_free_flight` takes MuJoCo's own steps on ``model``: no force but the field on
+    the lander off the pad (no joint spring, damper or friction loss, no actuator, no fluid, no
+    contact margin), an integrator that is then semi-implicit Euler, and one control period from
+    ``data`` the same to the last bit (a build of MuJoCo that fuses multiply-adds would differ)."""
+    forces = (model.dof_damping, model.jnt_stiffness, model.dof_frictionloss, model.geom_margin, model.geom_gap)
+    integrators = (mujoco.mjtIntegrator.mjINT_EULER, mujoco.mjtIntegrator.mjINT_IMPLICITFAST)
+    if model.nu or model.opt.density or model.opt.viscosity or any(np.any(f) for f in forces):
+        return False
+    if model.opt.integrator not in integrators or data.ncon or data.qpos[0] <= CLEARANCE_M:
+        return False
+    probe = mujoco.MjData(model)
+    probe.time, probe.qpos[0], probe.qvel[0] = data.time, data.qpos[0], data.qvel[0]
+    mujoco.mj_forward(model, probe)
+    ours = [np.zeros(1) for _ in range(4)]
+    if _free_flight(*ours, 0, 0, frame_skip, model.opt.timestep, -math.inf, *_state(probe)) != 1:
+        return False
+    mujoco.mj_step(model, probe, nstep=frame_skip)
+    return [float(x[0]) for x in ours] == list(_state(probe))
+
+
 def _floor(scenario: Scenario, placed: int) -> float:
     """The lowest height of free flight with ``placed`` weights on: the clearance, or the height
     at which the next weight is placed (:meth:`~microg_env.scenarios.Scenario.loads_due`)."""
@@ -166,7 +189,8 @@ def _state(data: mujoco.MjData) -> tuple[float, float, float, float]:
 def _free_flight(time, height, velocity, accel, k, steps, frame_skip, h, floor, t, z, v, a):
     """Control periods ``k``, ``k + 1``, ... of free flight at ``a`` from time ``t``, height ``z``
     and speed ``v``, sampled into the arrays, as MuJoCo's steps would take them (semi-implicit
-    Euler), while every step starts above ``floor`` and every period ends above it; the number taken."""
+    Euler, to which ``implicitfast`` reduces without velocity-dependent forces), while every step
+    starts above ``floor`` and every period ends above it; the number taken."""
     flown = 0
     while k + flown <= steps:
         tn, zn, vn = t, z, v

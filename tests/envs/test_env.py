@@ -295,7 +295,7 @@ def test_a_high_passed_residual_decays_to_the_base_controllers_steady_state():
 def test_a_second_order_high_pass_lets_neither_a_held_nor_a_ramping_action_hold_x():
     """``residual_highpass_order=2``: two first-order stages in cascade. A ramping action (as a
     policy's, whose observations drift through a free fall) leaves a steady setpoint of
-    r tau limit through one stage (v2's shipped policy: +6 nm, +0.02 % compensation error) and a
+    r tau limit through one stage (v2's shipped policy held x +6 nm off on condition 1) and a
     decaying one through two; each setpoint is the cascade's recursion computed here."""
     gain = highpass_gain(2.0, 5e-3)
     rate = 0.002  # per decision (0.4 per second)
@@ -317,7 +317,7 @@ def test_a_second_order_high_pass_lets_neither_a_held_nor_a_ramping_action_hold_
         np.testing.assert_allclose(setpoints, expected, rtol=1e-12, atol=1e-21)
         late[order] = np.mean(setpoints[300:])
     tau = 1.0 / (2.0 * math.pi * 2.0)
-    assert late[1] == pytest.approx(rate / 5e-3 * tau * 3e-6, rel=0.05)  # r tau limit: 38 nm
+    assert late[1] == pytest.approx(rate / 5e-3 * tau * 3e-6, rel=0.05)  # r tau limit: 95 nm
     assert abs(late[2]) < 0.01 * late[1]
 
 

@@ -616,15 +616,17 @@ def test_campaign_refuses_zero_cpus_and_a_folder_of_another_campaign(tmp_path):
 
 @pytest.mark.slow
 def test_run_each_on_two_processes_gives_the_runs_of_run_in_order():
-    """The reproduction's runs in parallel: each result, trajectories included, is what run gives."""
+    """The reproduction's runs in parallel: each result, trajectories included, is what run gives,
+    a run on a plant drawn at its reset (its reference simulated in its worker) included."""
     specs = [
         RunSpec("condition-1", "pid", 0, duration_s=0.3),
         RunSpec("condition-3", "feedforward", 1, duration_s=0.6),
         RunSpec("condition-2", "pid", 2, {"balancer.placement": "support_lander"}, duration_s=0.4),
+        RunSpec("condition-2", "pid", 3, randomize="full", duration_s=0.5),
     ]
     steps = []
     parallel = run_each(specs, workers=2, progress=steps.append)
-    assert sorted(steps) == [300, 400, 600]
+    assert sorted(steps) == [300, 400, 500, 600]
     for spec, result in zip(specs, parallel, strict=True):
         alone = run(spec)
         assert result.spec == spec

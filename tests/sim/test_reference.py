@@ -61,3 +61,26 @@ def test_most_of_a_landing_is_flown_without_mujoco(monkeypatch):
     assert 0.1 < in_contact / 30_000 < 0.3
     assert sum(flown) > 0.7 * 30_000
     assert sum(flown) + in_contact <= 30_000
+
+
+def test_free_flight_is_taken_only_where_it_is_mujocos_step():
+    """A damped joint, another integrator, a contact margin or a lander starting on the pad: the
+    reference steps MuJoCo throughout (the free flight's arithmetic would not be MuJoCo's)."""
+    import mujoco
+
+    from microg_env.sim.model import build_pad_test
+
+    def flies(change=None, height=0.05):
+        model = build_pad_test(PARAMS).model
+        if change is not None:
+            change(model)
+        data = mujoco.MjData(model)
+        data.qpos[0] = height
+        mujoco.mj_forward(model, data)
+        return reference._flies_as_mujoco(model, data, 10)
+
+    assert flies()
+    assert not flies(lambda m: m.dof_damping.__setitem__(0, 1.0))
+    assert not flies(lambda m: setattr(m.opt, "integrator", mujoco.mjtIntegrator.mjINT_RK4))
+    assert not flies(lambda m: m.geom_margin.__setitem__(slice(None), 1e-3))
+    assert not flies(height=0.0)
