@@ -66,6 +66,23 @@ class Trajectory:
         arrays["stage"] = np.asarray(arrays["stage"]).astype(int)
         return cls(scenario, gravity_m_s2, lander_mass_kg, **arrays)
 
+    @classmethod
+    def from_rows(
+        cls,
+        scenario: Scenario,
+        gravity_m_s2: float,
+        lander_mass_kg: float,
+        rows: np.ndarray,
+        rewards: np.ndarray,
+        termination_reason: str | None = None,
+    ) -> Trajectory:
+        """A run's trajectory from one row per step of every channel but the reward, in
+        :data:`CHANNELS`' order, and the rewards; new arrays."""
+        arrays = {name: column.copy() for name, column in zip(CHANNELS, rows.T, strict=False)}
+        arrays["reward"] = np.array(rewards, dtype=np.float64)
+        arrays["stage"] = arrays["stage"].astype(int)
+        return cls(scenario, gravity_m_s2, lander_mass_kg, termination_reason=termination_reason, **arrays)
+
 
 class TrajectoryRecorder:
     """The channels of the environment's ``info`` dictionaries, one row per step."""
@@ -82,8 +99,6 @@ class TrajectoryRecorder:
     def finish(
         self, scenario: Scenario, gravity_m_s2: float, lander_mass_kg: float, termination_reason: str | None = None
     ) -> Trajectory:
-        columns = np.array(self._rows, dtype=np.float64).reshape(-1, len(CHANNELS) - 1).T
-        arrays = {name: column.copy() for name, column in zip(CHANNELS, columns, strict=False)}
-        arrays["reward"] = np.array(self._rewards, dtype=np.float64)
-        arrays["stage"] = arrays["stage"].astype(int)
-        return Trajectory(scenario, gravity_m_s2, lander_mass_kg, termination_reason=termination_reason, **arrays)
+        rows = np.array(self._rows, dtype=np.float64).reshape(-1, len(CHANNELS) - 1)
+        rewards = np.array(self._rewards, dtype=np.float64)
+        return Trajectory.from_rows(scenario, gravity_m_s2, lander_mass_kg, rows, rewards, termination_reason)

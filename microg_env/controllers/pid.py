@@ -88,8 +88,12 @@ class PID(VectorController):
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         actions = np.empty(ids.size, dtype=np.float32)
-        pid_actions(rows, ids, SCALES, self.derivative_on_measurement, *self.loop(), actions)
+        pid_actions(rows, ids, *self.kernel_args(), actions)
         return actions
+
+    def kernel_args(self) -> tuple:
+        """:func:`pid_actions`'s arguments after the observations and rigs, but its output."""
+        return (SCALES, self.derivative_on_measurement, *self.loop())
 
     def loop(self) -> tuple:
         """The arguments of :func:`pid_command` after ``i, x, rate, bias``: this loop's state and constants."""

@@ -21,7 +21,9 @@ from typing import Any
 import numpy as np
 
 from microg_env import validate
+from microg_env.compiled import mj_step
 from microg_env.controllers.base import tell_plants
+from microg_env.controllers.pid import PID
 from microg_env.controllers.registry import make_controller
 from microg_env.envs import period
 from microg_env.envs.settings import TaskSettings
@@ -392,6 +394,59 @@ class LandingCore:
                 positions, rigs = positions[going], rigs[going]
         return total / periods, codes, truncated, periods
 
+    def runs_pid(self, controller: Any) -> bool:
+        """Whether :meth:`run_pid` can drive this core's rig with ``controller``: a :class:`PID`
+        itself (not a subclass, which may act otherwise), on one rig stepping its own ``MjData``,
+        its actions the drive's speeds, one period per step."""
+        return (
+            type(controller) is PID
+            and isinstance(self.physics, ModelPhysics)
+            and self.base is None
+            and self.decision_period == 1
+            and mj_step is not None
+        )
+
+    def run_pid(
+        self,
+        pid: PID,
+        count: int,
+        rngs: Sequence[np.random.Generator],
+        states: np.ndarray,
+        rewards: np.ndarray,
+        row: int,
+    ) -> tuple[int, int | None]:
+        """Up to ``count`` steps of the one rig (:meth:`runs_pid`) with ``pid`` choosing each
+        action from the observation, as ``step(ids, pid(observation))`` would take them, bit for
+        bit, in one compiled loop (:func:`~microg_env.envs.period.pid_periods`): each step's reward
+        into ``rewards`` and :meth:`state` into ``states``, from row ``row`` on. Returns the steps
+        taken and, if the episode ended, its termination code (a truncation's is 0)."""
+        ids = self._positions[:1]
+        actions, codes = np.zeros(1), self._codes[:1]
+        sums = (np.zeros(1), np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros(1, dtype=bool))
+        sums = (*sums, self._going[:1])  # the step's total, periods, codes, truncated, going
+        tally_args, state_args = (ids, ids, codes, self.steps, self.max_steps, self.reward_x), self._state_args(ids)
+        args = (
+            ids, actions, self.observation, pid.kernel_args(), self._drive_args(ids, ids, actions, self._no_commands),
+            self._observe_args(ids, codes, self._height[:1]), tally_args, sums, state_args, self._missing, states,
+            rewards,
+        )  # fmt: skip
+        model, data = self.physics.model._address, self.physics.data._address
+        done = 0
+        while done < count:
+            self._refill_noise(ids, rngs)
+            ran, why = period.pid_periods(count - done, model, data, self.frame_skip, *args, row + done)
+            done += ran
+            if why == period.NON_FINITE:
+                raise ValueError(f"action must be finite, got {float(actions[0])!r}")
+            if why == period.LOADS_DUE:  # the period's physics ran: place the weights, finish it here
+                self._observe(ids, rngs)
+                period.finish_period(tally_args, sums, state_args, states, rewards, row + done)
+                done += 1
+            self._noise.exhausted |= why == period.NOISE_USED
+            if sums[2][0] != 0 or sums[3][0]:
+                return done, int(sums[2][0])
+        return done, None
+
     def _control_period(
         self,
         ids: np.ndarray,
@@ -403,44 +458,59 @@ class LandingCore:
         """Advance rigs ``ids`` (at ``positions`` of ``actions``) one control period with the drive
         taking ``command_m_s`` (empty: the actions, as speeds) after the delay, if on; place the test
         weights that came due, and read the sensors; returns the rigs' termination codes."""
+        period.drive(*self._drive_args(ids, positions, actions, command_m_s))
+        self.physics.step(ids, self.frame_skip)
+        return self._observe(ids, rngs)
+
+    def _drive_args(
+        self, ids: np.ndarray, positions: np.ndarray, actions: np.ndarray, command_m_s: np.ndarray
+    ) -> tuple:
+        """:func:`~microg_env.envs.period.drive`'s arguments for rigs ``ids``."""
         physics, rig = self.physics, self.rig
         ideal = rig.ideal_drive
         # the field looked up each time: a copy of the environment has its own model
         dynprm = self._no_field if ideal else physics.field("actuator_dynprm")
-        period.drive(
+        return (
             ids, positions, actions, self.previous_action, command_m_s, self.imperfections.control_delay,
             self.pending_command, self.command, self.steps, self.position_ref, self.drift_n_per_s, self._drift_dof,
             physics.qfrc_applied, physics.ctrl, dynprm, rig.servo, SLEW_PARAMETER, rig.gear, ideal, MAX_SPEED_M_S,
             self.control_period_s, self._period_span_s,
         )  # fmt: skip
-        physics.step(ids, self.frame_skip)
-        return self._observe(ids, rngs)
 
     def _observe(self, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
         """Place the test weights of rigs ``ids`` that came due, read their sensors into their
         observation rows (noise from each rig's generator) and score x into ``reward_x``; returns
         their termination codes."""
-        physics, rig, sensors, noise = self.physics, self.rig, self.sensors, self._noise
-        if sensors.noisy and noise.exhausted:
-            noise.refill(ids, rngs)
+        self._refill_noise(ids, rngs)
         codes, height = self._codes[: ids.size], self._height[: ids.size]
-        low, high = self._screw_limits
         while True:
-            result = period.observe(
-                ids, physics.qpos, physics.sensordata, rig.screw_qpos, rig.qzs_qpos, rig.motor_qpos, self._accel_adr,
-                self._force_adr, self.gravity, sensors.noisy, sensors.noise, sensors.bias, sensors.steps, noise.block,
-                noise.used, self.last_readings, self.fresh, self.accelerometer, self.placed_load_kg,
-                self.previous_action, self.base_command, SCALES, self.control_period_s, self.observation,
-                self.reward_x, self.reward_scale_m, self.x_limit_m, low, high, self._floor, codes, self.next_load,
-                self.load_count, self.switch_height_m, height,
-            )  # fmt: skip
+            result = period.observe(*self._observe_args(ids, codes, height))
             if result >= 0:
-                noise.exhausted |= result == 1
+                self._noise.exhausted |= result == 1
                 if self._missing.size:  # sensors the rig's set lacks read 0
                     self.observation[np.ix_(ids, self._missing)] = 0.0
                 return codes
             due = ~np.isnan(height)
             self._place_due_loads(ids[due], height[due])
+
+    def _refill_noise(self, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
+        """Draw the sensor noise of rigs ``ids`` that have used theirs up, before they read."""
+        if self.sensors.noisy and self._noise.exhausted:
+            self._noise.refill(ids, rngs)
+
+    def _observe_args(self, ids: np.ndarray, codes: np.ndarray, height: np.ndarray) -> tuple:
+        """:func:`~microg_env.envs.period.observe`'s arguments for rigs ``ids`` (``codes`` and
+        ``height``: its outputs)."""
+        physics, rig, sensors, noise = self.physics, self.rig, self.sensors, self._noise
+        low, high = self._screw_limits
+        return (
+            ids, physics.qpos, physics.sensordata, rig.screw_qpos, rig.qzs_qpos, rig.motor_qpos, self._accel_adr,
+            self._force_adr, self.gravity, sensors.noisy, sensors.noise, sensors.bias, sensors.steps, noise.block,
+            noise.used, self.last_readings, self.fresh, self.accelerometer, self.placed_load_kg,
+            self.previous_action, self.base_command, SCALES, self.control_period_s, self.observation,
+            self.reward_x, self.reward_scale_m, self.x_limit_m, low, high, self._floor, codes, self.next_load,
+            self.load_count, self.switch_height_m, height,
+        )  # fmt: skip
 
     # -- what the rigs show ----------------------------------------------------------------------
 
@@ -452,17 +522,21 @@ class LandingCore:
     def state(self, ids: np.ndarray) -> np.ndarray:
         """The true physical state of rigs ``ids``, (n, 17): one row per rig, one column per
         :data:`INFO_KEYS` entry but the termination reason."""
-        physics, rig = self.physics, self.rig
         out = np.empty((ids.size, len(INFO_KEYS) - 1))
+        period.state(*self._state_args(ids), out)
+        return out
+
+    def _state_args(self, ids: np.ndarray) -> tuple:
+        """:func:`~microg_env.envs.period.state`'s arguments for rigs ``ids`` but its output."""
+        physics, rig = self.physics, self.rig
         setpoint = self.base.setpoint_m if self.base is not None else self._no_setpoint
-        period.state(
+        return (
             ids, physics.qpos, physics.qvel, physics.qacc, physics.sensordata, physics.actuator_force,
             physics.qfrc_applied, rig.screw_qpos, rig.qzs_qpos, rig.screw_dof, rig.qzs_dof, rig.servo,
             self._force_adr, self._drift_dof == rig.qzs_dof, self.x_stiffness, self.steps, self.control_period_s,
             self.accelerometer, self.placed_load_kg, self.next_load, self.command, setpoint,
-            self.reference_weight_n, self.reward_x, out,
+            self.reference_weight_n, self.reward_x,
         )  # fmt: skip
-        return out
 
     def info(self, ids: np.ndarray, codes: np.ndarray) -> dict[str, np.ndarray]:
         """The true physical state of rigs ``ids`` (:data:`INFO_KEYS`), one array entry per rig; new

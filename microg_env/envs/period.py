@@ -11,8 +11,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from microg_env.compiled import jit, ufunc
+from microg_env.compiled import jit, mj_step, ufunc
+from microg_env.controllers.pid import pid_actions
 from microg_env.sim.model import slew_rate
+
+#: Why :func:`pid_periods` returned: it ran every period asked for; the episode ended; a test
+#: weight came due after a period's physics (the caller places it and finishes the period); the
+#: sensors used up their noise draws (the caller draws more); the PID gave a non-finite action
+#: (nothing of that period ran).
+RAN, ENDED, LOADS_DUE, NOISE_USED, NON_FINITE = range(5)
 
 
 @ufunc("float64(float64, float64, float64)")
@@ -195,3 +202,55 @@ def state(
         row[14] = actuator_force[i, servo]
         row[15] = deviation / reference_weight_n[i]
         row[16] = reward_x[i]
+
+
+@jit
+def finish_period(tally_args, sums, state_args, states, rewards, row):
+    """The rest of one period of one rig after its sensors were read: :func:`tally` (``tally_args``
+    then the step's ``sums``: total, periods, codes, truncated, going) of the one period, its reward
+    (the step's mean, as :meth:`~microg_env.envs.core.LandingCore.step` returns it) into
+    ``rewards[row]`` and its :func:`state` into ``states[row]``; whether its episode ended."""
+    total, periods, codes, truncated, _ = sums
+    total[0] = 0.0
+    periods[0] = 0
+    tally(*tally_args, *sums)
+    rewards[row] = total[0] / periods[0]
+    state(*state_args, states[row : row + 1])
+    return codes[0] != 0 or truncated[0]
+
+
+@jit
+def pid_periods(
+    count, model, data, frame_skip, ids, actions, observation, pid_args, drive_args, observe_args, tally_args, sums,
+    state_args, missing, states, rewards, row,
+):  # fmt: skip
+    """Up to ``count`` control periods of rig ``ids[0]`` (its ``MjModel`` and ``MjData`` at
+    addresses ``model`` and ``data``) driven by a PID, each what the environment's step does with
+    the PID's action: :func:`~microg_env.controllers.pid.pid_actions` of the ``observation``
+    (``pid_args`` after the observation and rig) into ``actions[0]``, clipped; :func:`drive`;
+    ``frame_skip`` physics steps; :func:`observe` (the sensors ``missing`` read 0) and
+    :func:`finish_period` into rows ``row``, ``row + 1``, ... The argument tuples are those of each
+    kernel, ``ids``, ``actions`` and ``observation`` among them. Returns the periods finished and
+    why it stopped (:data:`RAN` ...)."""
+    out = np.empty(1, dtype=np.float32)  # the PID's action, float32 as the action space's
+    for n in range(count):
+        pid_actions(observation, ids, *pid_args, out)
+        value = np.float64(out[0])
+        if not np.isfinite(value):
+            actions[0] = value  # for the caller's error
+            return n, NON_FINITE
+        actions[0] = min(max(value, -1.0), 1.0)
+        drive(*drive_args)
+        for _ in range(frame_skip):
+            mj_step(model, data)
+        result = observe(*observe_args)
+        if result < 0:
+            return n, LOADS_DUE
+        for k in missing:
+            observation[ids[0], k] = 0.0
+        ended = finish_period(tally_args, sums, state_args, states, rewards, row + n)
+        if result == 1:
+            return n + 1, NOISE_USED
+        if ended:
+            return n + 1, ENDED
+    return count, RAN

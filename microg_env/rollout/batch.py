@@ -23,6 +23,7 @@ from microg_env.controllers.registry import make_controller
 from microg_env.envs.core import TERMINATION_REASONS, LandingCore
 from microg_env.envs.settings import TaskSettings
 from microg_env.params import RigParams
+from microg_env.rollout.episode import PROGRESS_EVERY
 from microg_env.scenarios import Scenario
 from microg_env.sim.reference import simulate_reference
 from microg_env.trajectory import CHANNELS, Trajectory
@@ -30,8 +31,6 @@ from microg_env.trajectory import CHANNELS, Trajectory
 #: Rigs stepped in one batch at most: the recorded channels take 14 x 8 bytes per rig and control
 #: step (0.9 GB for 256 rigs of 30 s at 1 ms).
 MAX_BATCH = 256
-#: Control steps between progress reports.
-PROGRESS_EVERY = 1000
 
 
 @dataclass(frozen=True)

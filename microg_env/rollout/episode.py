@@ -16,10 +16,15 @@ from microg_env import validate
 from microg_env.analysis.metrics import RunMetrics, compute_metrics
 from microg_env.analysis.summary import failure_rate
 from microg_env.controllers.base import Controller, tell_plants
+from microg_env.controllers.pid import PID
+from microg_env.envs.core import INFO_KEYS, TERMINATION_REASONS
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.scenarios import MAX_DURATION_S
 from microg_env.sim.reference import simulate_reference
-from microg_env.trajectory import Trajectory, TrajectoryRecorder
+from microg_env.trajectory import CHANNELS, Trajectory, TrajectoryRecorder
+
+#: Control steps between progress reports.
+PROGRESS_EVERY = 1000
 
 
 def _rig_env(env: gym.Env) -> MicroGravityLandingEnv:
@@ -55,6 +60,8 @@ def run_episode(
     steps = round(min(scenario_duration, duration_s or scenario_duration) / rig_env.control_period_s)
     controller.reset()
     tell_plants(controller, np.zeros(1, dtype=np.int64), [rig_env.params])
+    if on_step is None and env is rig_env and rig_env.render_mode != "human" and rig_env.core.runs_pid(controller):
+        return _run_pid(rig_env, controller, steps, on_progress)
     recorder = TrajectoryRecorder()
     recorder.append(info)
     if on_step is not None:
@@ -65,15 +72,40 @@ def run_episode(
         recorder.append(info, reward)
         if on_step is not None:
             on_step(env, info)
-        if on_progress is not None and (k + 1) % 1000 == 0:
-            on_progress(1000)
-            reported += 1000
+        if on_progress is not None and (k + 1) % PROGRESS_EVERY == 0:
+            on_progress(PROGRESS_EVERY)
+            reported += PROGRESS_EVERY
         if terminated or truncated:
             reason = info["termination_reason"]
             break
     if on_progress is not None:
         on_progress(steps - reported)
     return recorder.finish(rig_env.active_scenario, rig_env.params.gravity_m_s2, rig_env.params.lander.mass_kg, reason)
+
+
+def _run_pid(rig_env: MicroGravityLandingEnv, pid: PID, steps: int, on_progress) -> Trajectory:
+    """:func:`run_episode`'s loop after the reset for a :class:`PID` on the raw single environment,
+    compiled (:meth:`~microg_env.envs.core.LandingCore.run_pid`): the same trajectory, bit for bit
+    (tests/rollout/test_episode.py), at close to the physics' own speed."""
+    core, rngs = rig_env.core, [rig_env.np_random]
+    states, rewards = np.empty((steps + 1, len(INFO_KEYS) - 1)), np.zeros(steps + 1)
+    states[0] = core.state(np.zeros(1, dtype=np.int64))[0]  # the reset's
+    done, code, reported = 0, None, 0
+    while done < steps and code is None:
+        ran, code = core.run_pid(pid, min(PROGRESS_EVERY - done % PROGRESS_EVERY, steps - done), rngs, states,
+                                 rewards, done + 1)  # fmt: skip
+        done += ran
+        if on_progress is not None and done % PROGRESS_EVERY == 0:
+            on_progress(PROGRESS_EVERY)
+            reported += PROGRESS_EVERY
+    if on_progress is not None:
+        on_progress(steps - reported)
+    rows = states[: done + 1, [INFO_KEYS.index(name) for name in CHANNELS[:-1]]]
+    reason = None if code is None else TERMINATION_REASONS[code]
+    params = rig_env.params
+    return Trajectory.from_rows(
+        rig_env.active_scenario, params.gravity_m_s2, params.lander.mass_kg, rows, rewards[: done + 1], reason
+    )
 
 
 def plant_of(env: gym.Env) -> tuple:

@@ -1,5 +1,6 @@
 """The evaluation harness: any environment of this package, raw or wrapped; summaries over seeds."""
 
+import math
 from dataclasses import replace
 
 import gymnasium as gym
@@ -7,10 +8,15 @@ import numpy as np
 import pytest
 
 from microg_env.analysis.summary import summarise
+from microg_env.compiled import mj_step
 from microg_env.controllers import make_controller
+from microg_env.controllers.pid import PID
+from microg_env.envs.core import LandingCore
 from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.imperfections import Imperfections
 from microg_env.rollout.episode import evaluate, run_episode, run_with_metrics
 from microg_env.scenarios import CONDITIONS
+from microg_env.trajectory import CHANNELS
 
 ENV_ID = "microg_env:MicroGravityLanding-v1"
 
@@ -58,3 +64,87 @@ def test_a_drawn_schedule_runs_to_its_own_duration():
     drawn = env.active_scenario.duration_s
     assert drawn < 30.0
     assert trajectory.time_s[-1] == pytest.approx(drawn, abs=env.control_period_s)
+
+
+def _both_loops(settings: dict, controller: str = "pid", seed: int = 0, **kwargs):
+    """The episode run by the compiled PID loop and by the environment's own steps (an on_step
+    callback keeps run_episode on them), with each run's progress reports and environment."""
+    runs = []
+    for python_loop in (False, True):
+        env = MicroGravityLandingEnv(**settings)
+        pid = make_controller(controller, env.control_period_s, **kwargs)
+        reports = []
+        trajectory = run_episode(
+            env, pid, seed, on_progress=reports.append, on_step=(lambda env, info: None) if python_loop else None
+        )
+        runs.append((trajectory, reports, env))
+    return runs
+
+
+@pytest.mark.parametrize(
+    ("settings", "controller", "seed"),
+    [
+        ({"condition": 1, "scenario": replace(CONDITIONS[1], duration_s=2.5)}, "pid", 0),  # noise blocks run out
+        ({"condition": 3}, "pid-dom", 3),  # weights placed in flight, a period finished outside the loop
+        ({"scenario_sampler": "training", "domain_randomization": "full"}, "pid", 7),  # a drawn plant
+        ({"condition": 2, "imperfections": Imperfections.none()}, "pid", 1),  # the ideal drive, exact sensors
+        ({"condition": 2, "sensor_set": "paper", "control_period_s": 5e-4}, "pid", 2),  # sensors missing, 5 steps
+    ],
+)
+def test_the_compiled_pid_loop_runs_the_environments_episode_bit_for_bit(settings, controller, seed):
+    (fast, fast_reports, fast_env), (slow, slow_reports, slow_env) = _both_loops(settings, controller, seed)
+    assert len(fast) == len(slow) > 1000
+    for name in CHANNELS:
+        np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
+    assert fast.termination_reason == slow.termination_reason
+    assert fast_reports == slow_reports
+    assert sum(fast_reports) == len(fast) - 1
+    for field in ("observation", "steps", "previous_action", "placed_load_kg", "reward_x"):
+        np.testing.assert_array_equal(getattr(fast_env.core, field), getattr(slow_env.core, field), err_msg=field)
+    np.testing.assert_array_equal(fast_env.data.qpos, slow_env.data.qpos)
+    np.testing.assert_array_equal(fast_env.data.act, slow_env.data.act)
+    assert fast_env.core._noise.exhausted == slow_env.core._noise.exhausted
+
+
+def test_the_compiled_pid_loop_ends_where_the_environment_terminates():
+    """A PID with no gains lets the loaded lander take x to the guide's end: both loops stop there."""
+    runs = _both_loops({"condition": 3}, gains={"kp_per_s": 0.0, "ki_per_s2": 0.0, "kd": 0.0})
+    (fast, fast_reports, _), (slow, slow_reports, _) = runs
+    assert fast.termination_reason == slow.termination_reason == "guide_stroke_limit"
+    assert len(fast) == len(slow) < CONDITIONS[3].duration_s / 1e-3
+    np.testing.assert_array_equal(fast.x_m, slow.x_m)
+    np.testing.assert_array_equal(fast.reward, slow.reward)
+    assert fast_reports == slow_reports
+
+
+def test_the_compiled_pid_loop_refuses_a_non_finite_action_as_the_environment_does():
+    pid = make_controller("pid", 1e-3)
+    pid.constants = (math.nan, *pid.constants[1:])  # kp: every command NaN
+    for on_step in (None, lambda env, info: None):
+        with pytest.raises(ValueError, match="action must be finite, got nan"):
+            run_episode(MicroGravityLandingEnv(condition=1), pid, 0, on_step=on_step)
+
+
+def test_only_a_pid_on_the_raw_single_environment_takes_the_compiled_loop(monkeypatch):
+    taken = []
+    monkeypatch.setattr(LandingCore, "run_pid", lambda self, *args: taken.append(args) or (1, 0))
+
+    class Tuned(PID):  # a subclass may act otherwise: stepped through the environment
+        pass
+
+    pid = make_controller("pid", 1e-3)
+    tuned = Tuned(pid.gains, 1e-3)
+    short = {"scenario": replace(CONDITIONS[1], duration_s=0.01)}
+    run_episode(gym.make(ENV_ID, **short), pid, 0)  # wrapped
+    run_episode(MicroGravityLandingEnv(**short), tuned, 0)
+    run_episode(MicroGravityLandingEnv(**short), make_controller("feedforward", 1e-3), 0)
+    run_episode(MicroGravityLandingEnv(**short, decision_period=2), pid, 0)
+    assert not taken
+    run_episode(MicroGravityLandingEnv(**short), pid, 0)
+    assert len(taken) == 1
+
+
+def test_kernels_find_mujocos_step_beside_the_bindings():
+    """Without it the compiled PID loop silently falls back to the environment's steps."""
+    assert mj_step is not None
+    assert LandingCore(1).runs_pid(make_controller("pid", 1e-3))
