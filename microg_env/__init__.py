@@ -2,19 +2,34 @@
 
 Importing the package registers the Gymnasium environment ``MicroGravityLanding-v1``, with its
 vector environment on ``mujoco.batch`` (``gym.make_vec(..., vectorization_mode="vector_entry_point")``).
+The names below are imported when first used (``from microg_env import RigParams``), so that
+importing the package stays light: a command starts its worker processes before the rest imports.
 """
+
+import importlib
 
 from gymnasium.envs.registration import register, registry
 
-from microg_env.envs.landing import MicroGravityLandingEnv
-from microg_env.imperfections import DomainRandomization, Imperfections
 from microg_env.interface import RESIDUAL_HIGHPASS_HZ
-from microg_env.params import RigParams
-from microg_env.scenarios import CONDITIONS, LoadStep, Scenario
-from microg_env.sim.contact import SpringDamperContact
-from microg_env.sim.drop import drop_test, static_sink
-from microg_env.sim.model import PadTest, Rig, build_pad_test, build_rig
-from microg_env.version import __version__
+from microg_env.version import __version__ as __version__
+
+#: The package's names and the modules that define them.
+_EXPORTS = {
+    "CONDITIONS": "microg_env.scenarios",
+    "DomainRandomization": "microg_env.imperfections",
+    "Imperfections": "microg_env.imperfections",
+    "LoadStep": "microg_env.scenarios",
+    "MicroGravityLandingEnv": "microg_env.envs.landing",
+    "PadTest": "microg_env.sim.model",
+    "Rig": "microg_env.sim.model",
+    "RigParams": "microg_env.params",
+    "Scenario": "microg_env.scenarios",
+    "SpringDamperContact": "microg_env.sim.contact",
+    "build_pad_test": "microg_env.sim.model",
+    "build_rig": "microg_env.sim.model",
+    "drop_test": "microg_env.sim.drop",
+    "static_sink": "microg_env.sim.drop",
+}
 
 #: MicroGravityLanding-Residual-v1's reward_threshold: the mean return of its zero residual (the
 #: adaptive feed-forward alone) over 100 of its own draws, seeds 1000-1099 (678.2 ± 11.5 standard
@@ -79,20 +94,17 @@ _register(
     REWARD_THRESHOLD,
 )
 
-__all__ = [
-    "CONDITIONS",
-    "DomainRandomization",
-    "Imperfections",
-    "LoadStep",
-    "MicroGravityLandingEnv",
-    "PadTest",
-    "Rig",
-    "RigParams",
-    "Scenario",
-    "SpringDamperContact",
-    "__version__",
-    "build_pad_test",
-    "build_rig",
-    "drop_test",
-    "static_sink",
-]
+__all__ = sorted([*_EXPORTS, "__version__"])
+
+
+def __getattr__(name: str):
+    """One of the package's names (:data:`_EXPORTS`), imported on first use."""
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'microg_env' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_EXPORTS[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

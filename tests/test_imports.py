@@ -11,7 +11,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "microg_env"
 #: The package's layers, bottom first: a module may import its own layer and those below it. The
 #: package itself (``microg_env/__init__.py``, which registers the environments) is above them all.
 LAYERS = (
-    ("validate", "compiled", "version"),
+    ("validate", "compiled", "version", "workers"),
     ("files", "params"),
     ("scenarios", "trajectory"),
     ("sim",),

@@ -14,14 +14,20 @@ import os
 import sys
 from collections.abc import Sequence
 
-from microg_env.cli import campaign, learning, rig
 from microg_env.cli.common import Parser, UsageError, one_line
 from microg_env.version import __version__
+from microg_env.workers import start_fork_server
 
 __all__ = ["UsageError", "build_parser", "main"]
 
+#: Commands that run on a process pool, and what its fork server imports besides the runner: the
+#: server starts before the commands' modules are imported, and imports while this process does.
+POOLED_COMMANDS = {"reproduce": ("microg_env.paper.figures",)}
+
 
 def build_parser() -> argparse.ArgumentParser:
+    from microg_env.cli import campaign, learning, rig  # after a pooled command's fork server started
+
     parser = Parser(prog="microg", description="MuJoCo model of the QZS microgravity landing rig (Jia et al. 2024).")
     parser.add_argument("--version", action="version", version=f"microg {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
@@ -37,6 +43,19 @@ def _check_top_level(argv: list[str]) -> None:
         raise UsageError(f"microg: error: unrecognized option {argv[0]!r}; give a command first (microg --help)")
 
 
+def _start_pool(argv: list[str]) -> None:
+    """Start the fork server of a pooled command (:data:`POOLED_COMMANDS`) that will run on more
+    than one process (``--workers``, default every core)."""
+    if argv[0] not in POOLED_COMMANDS or "-h" in argv or "--help" in argv:
+        return
+    options = argparse.ArgumentParser(add_help=False)
+    options.add_argument("--workers")
+    workers = options.parse_known_args(argv[1:])[0].workers
+    pooled = (os.cpu_count() or 1) > 1 if workers is None else workers.strip() != "1"
+    if pooled:
+        start_fork_server(POOLED_COMMANDS[argv[0]])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``microg`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -45,6 +64,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     try:
         _check_top_level(argv)
+        _start_pool(argv)
         args = build_parser().parse_args(argv)
         args.argv = argv
         return args.handler(args)

@@ -9,8 +9,9 @@ from pathlib import Path
 from microg_env.analysis.metrics import contacts
 from microg_env.analysis.plots import envelope, figure_class, save_figure
 from microg_env.paper.reproduction import NUMBERS, Reproduction
-from microg_env.rollout.runner import RunResult, process_pool
+from microg_env.rollout.runner import RunResult
 from microg_env.trajectory import Trajectory
+from microg_env.workers import process_pool
 
 PAD_LABELS = {"paper": "Table 1 pad", "calibrated": "calibrated pad"}
 FIGURES = {

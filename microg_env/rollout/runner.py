@@ -14,14 +14,12 @@ from __future__ import annotations
 
 import contextlib
 import math
-import multiprocessing
-import multiprocessing.forkserver
 import os
 import platform
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import dataclass, field, replace
 from functools import cache
 from importlib import metadata
@@ -40,6 +38,7 @@ from microg_env.rollout.spec import RETUNED_PID, RunSpec
 from microg_env.scenarios import Scenario
 from microg_env.sim.reference import cut_reference, reference_key, simulate_reference
 from microg_env.trajectory import Trajectory
+from microg_env.workers import process_pool
 
 #: A reference's cost per simulated second as a share of a run's (0.45 s against 1.7 s for a 30 s
 #: condition), to start the longest tasks first.
@@ -109,25 +108,6 @@ def _episode(
 def _scored(spec: RunSpec, trajectory: Trajectory, reference: Trajectory, wall_s: float) -> RunResult:
     """The result of ``spec``'s episode ``trajectory``, scored against ``reference``."""
     return RunResult(spec, compute_metrics(trajectory, reference), None, {}, wall_s, versions(), trajectory, reference)
-
-
-def process_pool(workers: int) -> ProcessPoolExecutor:
-    """A pool of ``workers`` processes forked from a fork server (a fresh process that imported this
-    module once, :func:`start_fork_server`), not from this one: a process that has stepped a batch
-    holds thread pools (MuJoCo's, the numerical libraries') whose threads a forked child lacks, and
-    a ``microg compare`` run in a test runner's worker once hung so, in a forked child building its
-    reference."""
-    start_fork_server()
-    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("forkserver"))
-
-
-def start_fork_server(also: Sequence[str] = ()) -> None:
-    """Start the pools' fork server if it is not running, importing this module and the modules
-    ``also`` names: it imports them while this process goes on (a command that will need a pool
-    starts it first)."""
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload([__name__, *also])
-    multiprocessing.forkserver.ensure_running()
 
 
 def run_each(

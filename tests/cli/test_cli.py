@@ -773,3 +773,49 @@ def test_a_misspelt_option_gets_the_closest_option_of_its_command(capsys):
     assert "did you mean --reference?" in capsys.readouterr().err
     assert main(["run", "stray"]) == 2
     assert "did you mean" not in capsys.readouterr().err  # a stray word is not an option
+
+
+@pytest.mark.parametrize(
+    ("argv", "started"),
+    [
+        (["reproduce", "--out", "x"], (os.cpu_count() or 1) > 1),
+        (["reproduce", "--workers", "2"], True),
+        (["reproduce", "--workers=1"], False),
+        (["reproduce", "--workers", "1"], False),
+        (["reproduce", "--help"], False),
+        (["run", "--condition", "2"], False),
+    ],
+)
+def test_a_pooled_command_starts_its_fork_server_before_it_imports_the_rest(monkeypatch, argv, started):
+    calls = []
+    monkeypatch.setattr(cli, "start_fork_server", calls.append)
+    cli._start_pool(argv)
+    assert calls == ([cli.POOLED_COMMANDS["reproduce"]] if started else [])
+
+
+def test_importing_the_package_imports_neither_mujoco_nor_the_environments():
+    """The names are imported on first use: a command's fork server starts before the rest imports."""
+    code = (
+        "import sys, microg_env; "
+        "print('microg_env.envs.landing' in sys.modules, 'mujoco' in sys.modules); "
+        "from microg_env import RigParams, MicroGravityLandingEnv; "
+        "print(RigParams.__name__, MicroGravityLandingEnv.__name__, 'microg_env.envs.landing' in sys.modules)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO)},
+        check=True, timeout=120,
+    )  # fmt: skip
+    assert done.stdout.split() == ["False", "False", "RigParams", "MicroGravityLandingEnv", "True"]
+    for name in microg_env.__all__:
+        assert getattr(microg_env, name) is not None
+        assert name in dir(microg_env)
+    with pytest.raises(AttributeError, match="no attribute 'Rigparams'"):
+        microg_env.Rigparams  # noqa: B018
+
+
+def test_reproduce_without_matplotlib_stops_before_its_runs(monkeypatch, tmp_path, capsys):
+    monkeypatch.setattr("importlib.util.find_spec", lambda name, *args: None if name == "matplotlib" else object())
+    monkeypatch.setattr(cli, "start_fork_server", lambda also: None)
+    assert main(["reproduce", "--out", str(tmp_path / "report"), "--workers", "1", "--quiet"]) == 2
+    assert "plots need matplotlib: pip install 'microg-env[report]'" in capsys.readouterr().err
+    assert not (tmp_path / "report").exists()
