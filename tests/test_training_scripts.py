@@ -1,5 +1,5 @@
-"""The analysis scripts behind the adaptive baseline's settings, the partial oracles of docs/controllers.md and
-its returns table run."""
+"""The analysis scripts behind the adaptive baseline's settings, the partial oracles of docs/controllers.md, its
+returns table and the memory probe run."""
 
 from __future__ import annotations
 
@@ -17,6 +17,11 @@ TRAINING = Path(__file__).resolve().parents[1] / "training"
         ("tune_adaptive", ["--steps", "0.003", "--seeds", "1", "--duration", "0.3"], "step 0.003: J = "),
         ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
         ("returns_table", ["--seeds", "1", "--scenarios", "training"], "| zero residual (adaptive) | "),
+        (
+            "memory_probe",
+            ["--stack", "2", "--timesteps", "256", "--seeds", "2", "--scenarios", "training"],
+            "| training | ",
+        ),
     ],
 )
 @pytest.mark.slow
