@@ -7,6 +7,7 @@ importing the package stays light: a command starts its worker processes before 
 """
 
 import importlib
+from typing import TYPE_CHECKING
 
 from gymnasium.envs.registration import register, registry
 
@@ -30,6 +31,21 @@ _EXPORTS = {
     "drop_test": "microg_env.sim.drop",
     "static_sink": "microg_env.sim.drop",
 }
+if TYPE_CHECKING:  # the same names for type checkers (tests/cli/test_cli.py checks they agree)
+    from microg_env.envs.landing import MicroGravityLandingEnv as MicroGravityLandingEnv
+    from microg_env.imperfections import DomainRandomization as DomainRandomization
+    from microg_env.imperfections import Imperfections as Imperfections
+    from microg_env.params import RigParams as RigParams
+    from microg_env.scenarios import CONDITIONS as CONDITIONS
+    from microg_env.scenarios import LoadStep as LoadStep
+    from microg_env.scenarios import Scenario as Scenario
+    from microg_env.sim.contact import SpringDamperContact as SpringDamperContact
+    from microg_env.sim.drop import drop_test as drop_test
+    from microg_env.sim.drop import static_sink as static_sink
+    from microg_env.sim.model import PadTest as PadTest
+    from microg_env.sim.model import Rig as Rig
+    from microg_env.sim.model import build_pad_test as build_pad_test
+    from microg_env.sim.model import build_rig as build_rig
 
 #: MicroGravityLanding-Residual-v1's reward_threshold: the mean return of its zero residual (the
 #: adaptive feed-forward alone) over 100 of its own draws, seeds 1000-1099 (678.2 ± 11.5 standard
@@ -98,12 +114,17 @@ __all__ = sorted([*_EXPORTS, "__version__"])
 
 
 def __getattr__(name: str):
-    """One of the package's names (:data:`_EXPORTS`), imported on first use."""
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'microg_env' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_EXPORTS[name]), name)
-    globals()[name] = value
-    return value
+    """One of the package's names (:data:`_EXPORTS`), or one of its modules, imported on first use."""
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(_EXPORTS[name]), name)
+        globals()[name] = value
+        return value
+    try:
+        return importlib.import_module(f"{__name__}.{name}")
+    except ModuleNotFoundError as error:
+        if error.name != f"{__name__}.{name}":
+            raise
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:

@@ -49,7 +49,8 @@ def _step_function() -> types.ExternalFunction | None:
 
 #: MuJoCo's C ``mj_step(m, d)`` for kernels, called with the addresses of an ``MjModel`` and an
 #: ``MjData`` (their ``_address``): the function ``mujoco.mj_step`` runs, without the Python call
-#: (None where the library is not found; then no kernel steps physics). A MuJoCo error inside it
-#: (only an exhausted arena, which this rig's fixed-size model never reaches) ends the process
-#: instead of raising.
+#: (None where the library is not found; then no kernel steps physics). Outside the bindings' own
+#: calls MuJoCo has no Python error handler: an error inside it (an exhausted arena, which this
+#: rig's fixed-size model never reaches, or a Python ``mjcb_*`` callback that raises; the package
+#: sets none) ends the process instead of raising.
 mj_step = _step_function()

@@ -78,7 +78,7 @@ class Trajectory:
     ) -> Trajectory:
         """A run's trajectory from one row per step of every channel but the reward, in
         :data:`CHANNELS`' order, and the rewards; new arrays."""
-        arrays = {name: column.copy() for name, column in zip(CHANNELS, rows.T, strict=False)}
+        arrays = {name: column.copy() for name, column in zip(CHANNELS[:-1], rows.T, strict=True)}
         arrays["reward"] = np.array(rewards, dtype=np.float64)
         arrays["stage"] = arrays["stage"].astype(int)
         return cls(scenario, gravity_m_s2, lander_mass_kg, termination_reason=termination_reason, **arrays)

@@ -20,8 +20,8 @@ from microg_env.workers import start_fork_server
 
 __all__ = ["UsageError", "build_parser", "main"]
 
-#: Commands that run on a process pool, and what its fork server imports besides the runner: the
-#: server starts before the commands' modules are imported, and imports while this process does.
+#: Commands whose process pool's fork server starts before the commands' modules are imported,
+#: and what it imports besides the runner: it imports while this process does.
 POOLED_COMMANDS = {"reproduce": ("microg_env.paper.figures",)}
 
 
@@ -45,14 +45,19 @@ def _check_top_level(argv: list[str]) -> None:
 
 def _start_pool(argv: list[str]) -> None:
     """Start the fork server of a pooled command (:data:`POOLED_COMMANDS`) that will run on more
-    than one process (``--workers``, default every core)."""
-    if argv[0] not in POOLED_COMMANDS or "-h" in argv or "--help" in argv:
+    than one process (``--workers``, default every core); not for its help, and not where its
+    options are bad (its own parser says so)."""
+    if argv[0] not in POOLED_COMMANDS:
         return
-    options = argparse.ArgumentParser(add_help=False)
+    options = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    options.add_argument("-h", "--help", action="store_true")
     options.add_argument("--workers")
-    workers = options.parse_known_args(argv[1:])[0].workers
-    pooled = (os.cpu_count() or 1) > 1 if workers is None else workers.strip() != "1"
-    if pooled:
+    try:
+        known = options.parse_known_args(argv[1:])[0]
+        pooled = (os.cpu_count() or 1) > 1 if known.workers is None else int(known.workers) != 1
+    except (argparse.ArgumentError, ValueError):
+        return
+    if pooled and not known.help:
         start_fork_server(POOLED_COMMANDS[argv[0]])
 
 

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import math
@@ -298,6 +299,12 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _import_quietly(module: str) -> None:
+    """Import ``module`` if it imports; if not, the code that uses it reports why, in one line."""
+    with contextlib.suppress(Exception):
+        importlib.import_module(module)
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from microg_env.analysis.plots import require_matplotlib
     from microg_env.paper import report, reproduction
@@ -315,7 +322,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     report.check_output(out)
     require_matplotlib()  # fail now, not after the runs
     # The figures' matplotlib imported (a third of a second) while the runs run, not before them.
-    threading.Thread(target=importlib.import_module, args=("matplotlib.figure",), daemon=True).start()
+    threading.Thread(target=_import_quietly, args=("matplotlib.figure",), daemon=True).start()
     duration = 30.0 if args.duration is None else args.duration
     with progress_bar("reproduce", args.quiet, reproduction.total_steps(duration)) as bar:
         runs = reproduction.compute(duration_s=duration, seed=args.seed, progress=bar.update, workers=args.workers)

@@ -82,8 +82,12 @@ class PID(VectorController):
         self.derivative_on_measurement = derivative_on_measurement
         alpha = control_period_s / (gains.derivative_filter_s + control_period_s)  # the derivative's filter
         #: The loop's constants, in the order :func:`pid_command` takes them.
-        self.constants = (
-            gains.kp_per_s, gains.ki_per_s2, gains.kd, alpha, gains.integral_limit_m_s, control_period_s, MAX_SPEED_M_S
+        self.constants = tuple(
+            float(value)  # floats, whatever numbers the gains were given as: one compiled signature
+            for value in (
+                gains.kp_per_s, gains.ki_per_s2, gains.kd, alpha, gains.integral_limit_m_s, control_period_s,
+                MAX_SPEED_M_S,
+            )
         )  # fmt: skip
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:

@@ -394,7 +394,7 @@ class LandingCore:
                 positions, rigs = positions[going], rigs[going]
         return total / periods, codes, truncated, periods
 
-    def runs_pid(self, controller: Any) -> bool:
+    def can_run_pid(self, controller: Any) -> bool:
         """Whether :meth:`run_pid` can drive this core's rig with ``controller``: a :class:`PID`
         itself (not a subclass, which may act otherwise), on one rig stepping its own ``MjData``,
         its actions the drive's speeds, one period per step."""
@@ -415,7 +415,7 @@ class LandingCore:
         rewards: np.ndarray,
         row: int,
     ) -> tuple[int, int | None]:
-        """Up to ``count`` steps of the one rig (:meth:`runs_pid`) with ``pid`` choosing each
+        """Up to ``count`` steps of the one rig (:meth:`can_run_pid`) with ``pid`` choosing each
         action from the observation, as ``step(ids, pid(observation))`` would take them, bit for
         bit, in one compiled loop (:func:`~microg_env.envs.period.pid_periods`): each step's reward
         into ``rewards`` and :meth:`state` into ``states``, from row ``row`` on. Returns the steps
@@ -433,12 +433,11 @@ class LandingCore:
         model, data = self.physics.model._address, self.physics.data._address
         done = 0
         while done < count:
-            self._refill_noise(ids, rngs)
             ran, why = period.pid_periods(count - done, model, data, self.frame_skip, *args, row + done)
             done += ran
             if why == period.NON_FINITE:
                 raise ValueError(f"action must be finite, got {float(actions[0])!r}")
-            if why == period.LOADS_DUE:  # the period's physics ran: place the weights, finish it here
+            if why == period.OBSERVE_HERE:  # the period's physics ran: read (draws, weights) and finish it
                 self._observe(ids, rngs)
                 period.finish_period(tally_args, sums, state_args, states, rewards, row + done)
                 done += 1
@@ -481,22 +480,21 @@ class LandingCore:
         """Place the test weights of rigs ``ids`` that came due, read their sensors into their
         observation rows (noise from each rig's generator) and score x into ``reward_x``; returns
         their termination codes."""
-        self._refill_noise(ids, rngs)
         codes, height = self._codes[: ids.size], self._height[: ids.size]
         while True:
+            if self.sensors.noisy and self._noise.exhausted:
+                self._noise.refill(ids, rngs)
             result = period.observe(*self._observe_args(ids, codes, height))
             if result >= 0:
                 self._noise.exhausted |= result == 1
                 if self._missing.size:  # sensors the rig's set lacks read 0
                     self.observation[np.ix_(ids, self._missing)] = 0.0
                 return codes
-            due = ~np.isnan(height)
-            self._place_due_loads(ids[due], height[due])
-
-    def _refill_noise(self, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
-        """Draw the sensor noise of rigs ``ids`` that have used theirs up, before they read."""
-        if self.sensors.noisy and self._noise.exhausted:
-            self._noise.refill(ids, rngs)
+            if result == -1:
+                due = ~np.isnan(height)
+                self._place_due_loads(ids[due], height[due])
+            else:  # -2: a rig's noise draws ran out
+                self._noise.exhausted = True
 
     def _observe_args(self, ids: np.ndarray, codes: np.ndarray, height: np.ndarray) -> tuple:
         """:func:`~microg_env.envs.period.observe`'s arguments for rigs ``ids`` (``codes`` and

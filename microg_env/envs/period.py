@@ -15,11 +15,12 @@ from microg_env.compiled import jit, mj_step, ufunc
 from microg_env.controllers.pid import pid_actions
 from microg_env.sim.model import slew_rate
 
-#: Why :func:`pid_periods` returned: it ran every period asked for; the episode ended; a test
-#: weight came due after a period's physics (the caller places it and finishes the period); the
-#: sensors used up their noise draws (the caller draws more); the PID gave a non-finite action
-#: (nothing of that period ran).
-RAN, ENDED, LOADS_DUE, NOISE_USED, NON_FINITE = range(5)
+#: Why :func:`pid_periods` returned: it ran every period asked for; the episode ended; after a
+#: period's physics the sensors cannot be read in the loop (a test weight came due, or the noise
+#: draws ran out: the caller reads them, as the environment's step does, and finishes the period);
+#: the sensors used the last of their noise draws; the PID gave a non-finite action (nothing of
+#: that period ran).
+RAN, ENDED, OBSERVE_HERE, NOISE_USED, NON_FINITE = range(5)
 
 
 @ufunc("float64(float64, float64, float64)")
@@ -92,11 +93,17 @@ def observe(
     ``codes_out[j]`` the termination code (0: going on; 1 guide stroke, 2 screw stroke, 3 pad
     bottomed out).
 
-    First, though, the rigs whose foot has come down to their next test weight's switch height
+    First, though: if some rig has no noise draw left, nothing is read and it returns -2, for the
+    draws to be made (:class:`~microg_env.sim.sensors.NoiseDraws`) and the call made again; then
+    the rigs whose foot has come down to their next test weight's switch height
     (``switch_height_m``; ``height_out[j]`` its height, NaN for the others): if any has, nothing is
     read and it returns -1, for the weights to be placed and the call made again. Else it returns 1
     if some rig has used up its noise draws, 0 if not.
     """
+    if noisy:
+        for j in range(ids.size):
+            if used[ids[j]] >= normals.shape[1]:
+                return -2
     due = False
     for j in range(ids.size):
         i = ids[j]
@@ -245,7 +252,7 @@ def pid_periods(
             mj_step(model, data)
         result = observe(*observe_args)
         if result < 0:
-            return n, LOADS_DUE
+            return n, OBSERVE_HERE
         for k in missing:
             observation[ids[0], k] = 0.0
         ended = finish_period(tally_args, sums, state_args, states, rewards, row + n)

@@ -1,5 +1,6 @@
 """The microg command: output, JSON, and one-line errors with exit code 2 for any bad input."""
 
+import ast
 import io
 import json
 import math
@@ -783,6 +784,11 @@ def test_a_misspelt_option_gets_the_closest_option_of_its_command(capsys):
         (["reproduce", "--workers=1"], False),
         (["reproduce", "--workers", "1"], False),
         (["reproduce", "--help"], False),
+        (["reproduce", "--hel"], False),  # argparse's abbreviation of --help
+        (["reproduce", "--workers", "01"], False),  # one worker, as the command's parser reads it
+        (["reproduce", "--work", "3"], True),
+        (["reproduce", "--seed", "1", "--workers"], False),  # a bad option: the command's parser says so
+        (["reproduce", "--workers", "many"], False),
         (["run", "--condition", "2"], False),
     ],
 )
@@ -809,8 +815,16 @@ def test_importing_the_package_imports_neither_mujoco_nor_the_environments():
     for name in microg_env.__all__:
         assert getattr(microg_env, name) is not None
         assert name in dir(microg_env)
+    assert microg_env.scenarios.Scenario is microg_env.Scenario  # its modules as attributes, as before
     with pytest.raises(AttributeError, match="no attribute 'Rigparams'"):
         microg_env.Rigparams  # noqa: B018
+    # the names type checkers see (imported under TYPE_CHECKING) are the names it exports
+    source = ast.parse((REPO / "microg_env" / "__init__.py").read_text(encoding="utf-8"))
+    checked = next(
+        node for node in source.body if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+    )
+    typed = {alias.name: node.module for node in checked.body for alias in node.names}
+    assert typed == microg_env._EXPORTS
 
 
 def test_reproduce_without_matplotlib_stops_before_its_runs(monkeypatch, tmp_path, capsys):

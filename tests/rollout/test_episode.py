@@ -66,19 +66,38 @@ def test_a_drawn_schedule_runs_to_its_own_duration():
     assert trajectory.time_s[-1] == pytest.approx(drawn, abs=env.control_period_s)
 
 
-def _both_loops(settings: dict, controller: str = "pid", seed: int = 0, **kwargs):
+def _both_loops(settings: dict, controller: str = "pid", seed: int = 0, pid=None, **kwargs):
     """The episode run by the compiled PID loop and by the environment's own steps (an on_step
-    callback keeps run_episode on them), with each run's progress reports and environment."""
+    callback keeps run_episode on them), with each run's progress reports, environment, PID and
+    the compiled loop's calls (none for the environment's steps)."""
     runs = []
     for python_loop in (False, True):
         env = MicroGravityLandingEnv(**settings)
-        pid = make_controller(controller, env.control_period_s, **kwargs)
-        reports = []
-        trajectory = run_episode(
-            env, pid, seed, on_progress=reports.append, on_step=(lambda env, info: None) if python_loop else None
-        )
-        runs.append((trajectory, reports, env))
+        each = make_controller(controller, env.control_period_s, **kwargs) if pid is None else pid()
+        reports, calls = [], []
+        env.core.run_pid = lambda *args, calls=calls, run=env.core.run_pid: calls.append(args[1]) or run(*args)
+        on_step = (lambda env, info: None) if python_loop else None
+        try:
+            trajectory = run_episode(env, each, seed, on_progress=reports.append, on_step=on_step)
+        except ValueError as error:
+            trajectory = error
+        runs.append((trajectory, reports, env, each, calls))
+    assert runs[0][4], "the compiled loop did not run"
+    assert not runs[1][4]
     return runs
+
+
+def _same_state(fast_env, slow_env, fast_pid, slow_pid):
+    """The environments, their generators and the PIDs are where each other's are, to the last bit."""
+    for field in ("observation", "steps", "previous_action", "placed_load_kg", "reward_x", "last_readings"):
+        np.testing.assert_array_equal(getattr(fast_env.core, field), getattr(slow_env.core, field), err_msg=field)
+    for field in ("qpos", "qvel", "act", "ctrl"):
+        np.testing.assert_array_equal(getattr(fast_env.data, field), getattr(slow_env.data, field), err_msg=field)
+    assert fast_env.np_random.bit_generator.state == slow_env.np_random.bit_generator.state
+    np.testing.assert_array_equal(fast_env.core._noise.used, slow_env.core._noise.used)
+    assert fast_env.core._noise.exhausted == slow_env.core._noise.exhausted
+    for name in PID.STATE:
+        np.testing.assert_array_equal(getattr(fast_pid, name), getattr(slow_pid, name), err_msg=name)
 
 
 @pytest.mark.parametrize(
@@ -92,37 +111,43 @@ def _both_loops(settings: dict, controller: str = "pid", seed: int = 0, **kwargs
     ],
 )
 def test_the_compiled_pid_loop_runs_the_environments_episode_bit_for_bit(settings, controller, seed):
-    (fast, fast_reports, fast_env), (slow, slow_reports, slow_env) = _both_loops(settings, controller, seed)
+    (fast, fast_reports, fast_env, fast_pid, _), (slow, slow_reports, slow_env, slow_pid, _) = _both_loops(
+        settings, controller, seed
+    )
     assert len(fast) == len(slow) > 1000
     for name in CHANNELS:
         np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
     assert fast.termination_reason == slow.termination_reason
     assert fast_reports == slow_reports
     assert sum(fast_reports) == len(fast) - 1
-    for field in ("observation", "steps", "previous_action", "placed_load_kg", "reward_x"):
-        np.testing.assert_array_equal(getattr(fast_env.core, field), getattr(slow_env.core, field), err_msg=field)
-    np.testing.assert_array_equal(fast_env.data.qpos, slow_env.data.qpos)
-    np.testing.assert_array_equal(fast_env.data.act, slow_env.data.act)
-    assert fast_env.core._noise.exhausted == slow_env.core._noise.exhausted
+    _same_state(fast_env, slow_env, fast_pid, slow_pid)
 
 
 def test_the_compiled_pid_loop_ends_where_the_environment_terminates():
     """A PID with no gains lets the loaded lander take x to the guide's end: both loops stop there."""
-    runs = _both_loops({"condition": 3}, gains={"kp_per_s": 0.0, "ki_per_s2": 0.0, "kd": 0.0})
-    (fast, fast_reports, _), (slow, slow_reports, _) = runs
+    runs = _both_loops({"condition": 3}, gains={"kp_per_s": 0, "ki_per_s2": 0.0, "kd": 0.0})
+    (fast, fast_reports, fast_env, fast_pid, _), (slow, slow_reports, slow_env, slow_pid, _) = runs
     assert fast.termination_reason == slow.termination_reason == "guide_stroke_limit"
     assert len(fast) == len(slow) < CONDITIONS[3].duration_s / 1e-3
     np.testing.assert_array_equal(fast.x_m, slow.x_m)
     np.testing.assert_array_equal(fast.reward, slow.reward)
     assert fast_reports == slow_reports
+    _same_state(fast_env, slow_env, fast_pid, slow_pid)
 
 
 def test_the_compiled_pid_loop_refuses_a_non_finite_action_as_the_environment_does():
-    pid = make_controller("pid", 1e-3)
-    pid.constants = (math.nan, *pid.constants[1:])  # kp: every command NaN
-    for on_step in (None, lambda env, info: None):
-        with pytest.raises(ValueError, match="action must be finite, got nan"):
-            run_episode(MicroGravityLandingEnv(condition=1), pid, 0, on_step=on_step)
+    """Its first action is NaN, when the sensors' first noise draws are still to be made: both loops
+    raise the environment's error before drawing them."""
+
+    def nan_pid():
+        pid = make_controller("pid", 1e-3)
+        pid.constants = (math.nan, *pid.constants[1:])  # kp: every command NaN
+        return pid
+
+    (fast, _, fast_env, fast_pid, _), (slow, _, slow_env, slow_pid, _) = _both_loops({"condition": 1}, pid=nan_pid)
+    assert isinstance(fast, ValueError)
+    assert str(fast) == str(slow) == "action must be finite, got nan"
+    _same_state(fast_env, slow_env, fast_pid, slow_pid)
 
 
 def test_only_a_pid_on_the_raw_single_environment_takes_the_compiled_loop(monkeypatch):
@@ -132,13 +157,19 @@ def test_only_a_pid_on_the_raw_single_environment_takes_the_compiled_loop(monkey
     class Tuned(PID):  # a subclass may act otherwise: stepped through the environment
         pass
 
+    class Logged(MicroGravityLandingEnv):  # a subclass may step otherwise
+        pass
+
     pid = make_controller("pid", 1e-3)
     tuned = Tuned(pid.gains, 1e-3)
     short = {"scenario": replace(CONDITIONS[1], duration_s=0.01)}
     run_episode(gym.make(ENV_ID, **short), pid, 0)  # wrapped
+    run_episode(Logged(**short), pid, 0)
     run_episode(MicroGravityLandingEnv(**short), tuned, 0)
     run_episode(MicroGravityLandingEnv(**short), make_controller("feedforward", 1e-3), 0)
     run_episode(MicroGravityLandingEnv(**short, decision_period=2), pid, 0)
+    run_episode(MicroGravityLandingEnv(**short, action_mode="residual"), pid, 0)
+    run_episode(MicroGravityLandingEnv(**short), pid, 0, on_step=lambda env, info: None)
     assert not taken
     run_episode(MicroGravityLandingEnv(**short), pid, 0)
     assert len(taken) == 1
@@ -147,4 +178,4 @@ def test_only_a_pid_on_the_raw_single_environment_takes_the_compiled_loop(monkey
 def test_kernels_find_mujocos_step_beside_the_bindings():
     """Without it the compiled PID loop silently falls back to the environment's steps."""
     assert mj_step is not None
-    assert LandingCore(1).runs_pid(make_controller("pid", 1e-3))
+    assert LandingCore(1).can_run_pid(make_controller("pid", 1e-3))
