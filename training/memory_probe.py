@@ -2,7 +2,7 @@
 stacked over the last ``--stack`` decisions (stable-baselines3's ``VecFrameStack`` after
 ``VecNormalize``, as rl-baselines3-zoo's ``frame_stack``; 1: no memory, the shipped recipe), and its
 returns paired with the zero residual's (``adaptive`` alone) on the same seeds: the training draws
-and the held-out schedules of the returns table (training/returns_table.py).
+and the held-out schedules (``scenarios.HELD_OUT``), as in the returns table (training/returns_table.py).
 
 A probe, not a recipe: ``microg train`` and ``PolicyController`` do not stack observations, so a
 stacked policy cannot be shipped or compared by ``microg compare`` yet; this measures whether it
@@ -20,11 +20,12 @@ import time
 
 import numpy as np
 import torch
-from returns_table import ENV_IDS, SCENARIOS, episode_return, make_env
+from returns_table import ENV_IDS, episode_return, make_env
 
 from microg_env.experiments.comparison import TEST_SEED
 from microg_env.learning import hyperparams
 from microg_env.learning.vec_env import BatchedVecEnv
+from microg_env.scenarios import HELD_OUT
 
 ENV_ID = ENV_IDS[0]
 
@@ -66,7 +67,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timesteps", type=int, default=1_000_000, help="training steps (default the recipe's)")
     parser.add_argument("--seeds", type=int, default=100, help="training draws, seeds from 1000 (default 100)")
     parser.add_argument("--held-out-seeds", type=int, default=13, help="seeds per held-out schedule (default 13)")
-    parser.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated (default: every one)")
+    parser.add_argument(
+        "--scenarios",
+        default=",".join(("training", *HELD_OUT)),
+        help="comma-separated: training and comparison scenarios (default: training and the held-out ones)",
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     start = time.perf_counter()
