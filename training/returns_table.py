@@ -26,7 +26,12 @@ import gymnasium as gym
 import numpy as np
 
 import microg_env  # noqa: F401  (registers the ids)
-from microg_env.controllers.registry import check_policy_folder, is_policy_folder, shipped_policy_folder
+from microg_env.controllers.registry import (
+    ACTING_KEYS,
+    check_policy_folder,
+    is_policy_folder,
+    shipped_policy_folder,
+)
 from microg_env.experiments.comparison import TEST_SEED
 from microg_env.scenarios import comparison_scenarios
 
@@ -62,14 +67,7 @@ def policy_actor(env_id: str, name: str) -> Callable[[np.ndarray], np.ndarray]:
     card, policy = check_policy_folder(folder)
     env = card["env_kwargs"]
     task = gym.spec(env_id).kwargs
-    for key in (
-        "action_mode",
-        "base_controller",
-        "decision_period",
-        "residual_limit_m",
-        "residual_highpass_hz",
-        "residual_highpass_order",
-    ):
+    for key in ACTING_KEYS:
         if env.get(key) != task.get(key):
             raise ValueError(
                 f"policy {name!r} was trained with {key} {env.get(key)!r}, not {env_id}'s {task.get(key)!r}"

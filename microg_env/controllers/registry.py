@@ -106,6 +106,18 @@ def policy_card(folder: str | Path) -> dict[str, Any]:
     return card
 
 
+#: The env_kwargs of a policy card that say how the deployed policy acts (:func:`_check_deployment`
+#: reads each, and the control period), so a policy is run only on the task it was trained on.
+ACTING_KEYS = (
+    "action_mode",
+    "base_controller",
+    "decision_period",
+    "residual_limit_m",
+    "residual_highpass_hz",
+    "residual_highpass_order",
+)
+
+
 def _check_deployment(env: dict[str, Any]) -> None:
     """The env_kwargs a deployed policy reads: of the right kinds and ranges, the base controller a
     classical one (a policy on a policy, or on itself, is refused)."""

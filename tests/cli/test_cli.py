@@ -22,6 +22,7 @@ import microg_env
 from microg_env import cli
 from microg_env.cli import main
 from microg_env.cli.common import DROP_OPTIONS, RUN_OPTIONS, naming
+from microg_env.controllers.registry import ACTING_KEYS
 from microg_env.validate import FieldError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -661,15 +662,7 @@ def test_a_generated_bad_campaign_file_is_one_line_naming_the_file(case, data, t
 
 def _policy_cases():
     card = json.loads((REPO / "microg_env" / "policies" / "residual-ppo" / "policy.json").read_text())
-    for key in (
-        "action_mode",
-        "base_controller",
-        "decision_period",
-        "residual_limit_m",
-        "residual_highpass_hz",
-        "residual_highpass_order",
-        "control_period_s",
-    ):
+    for key in (*ACTING_KEYS, "control_period_s"):
         for value in BAD_VALUES:
             if (key, value) in {
                 ("decision_period", "1.5"),
