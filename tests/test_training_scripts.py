@@ -1,5 +1,5 @@
 """The analysis scripts behind the adaptive baseline's settings, the partial oracles of docs/controllers.md, its
-returns table and the memory probe run."""
+returns table and the recipe probes run, and the probes' asymmetric critic and export hold."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ TRAINING = Path(__file__).resolve().parents[1] / "training"
         ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
         ("returns_table", ["--seeds", "1", "--scenarios", "training"], "| zero residual (adaptive) | "),
         (
-            "memory_probe",
+            "recipe_probe",
             ["--stack", "2", "--timesteps", "256", "--seeds", "2", "--scenarios", "training"],
             "| training | ",
         ),
@@ -30,3 +30,67 @@ def test_training_script_runs(name, args, expected, monkeypatch, capsys):
     module = importlib.import_module(name)
     assert module.main(args) == 0
     assert expected in capsys.readouterr().out
+
+
+@pytest.fixture
+def recipe_probe(monkeypatch):
+    monkeypatch.syspath_prepend(str(TRAINING))
+    return importlib.import_module("recipe_probe")
+
+
+@pytest.mark.slow
+def test_probe_export_acts_as_the_trained_actor(recipe_probe, tmp_path):
+    """The exported folder (privileged columns dropped, blind ones zeroed) gives the trained actor's
+    actions on the environment's own observations, whatever a blind entry reads."""
+    import gymnasium as gym
+    import numpy as np
+
+    from microg_env.controllers.registry import check_policy_folder
+    from microg_env.interface import OBSERVATION_INDEX
+
+    blind = [OBSERVATION_INDEX["support_position"], OBSERVATION_INDEX["height"]]
+    model, normalized = recipe_probe.train(1, True, blind, seed=3, timesteps=512)
+    recipe_probe.export(model, normalized, blind, tmp_path, {"env_kwargs": gym.spec(recipe_probe.ENV_ID).kwargs})
+    _, network = check_policy_folder(tmp_path)
+    assert network.weights[0].shape[1] == len(OBSERVATION_INDEX)
+    act = recipe_probe.actor(model, normalized, 1, blind)
+    env = gym.make(recipe_probe.ENV_ID)
+    obs, _ = env.reset(seed=1000)
+    actions = []
+    for _ in range(50):
+        expected = act(obs)
+        assert np.allclose(network.predict(obs)[0], expected, atol=1e-5)
+        shifted = obs.copy()
+        shifted[blind] += 1.0  # a blind entry moves nothing
+        assert np.allclose(network.predict(shifted)[0], expected, atol=1e-5)
+        actions.append(expected)
+        obs, *_ = env.step(expected)
+    assert np.ptp(actions) > 0  # the check saw the actor act, not a constant
+
+
+@pytest.mark.slow
+def test_privileged_observation_follows_the_episode(recipe_probe):
+    """The critic's features are those of the episode an observation belongs to: an ended
+    episode's terminal observation carries its own, the next episode's first observation the new one's."""
+    import numpy as np
+
+    from microg_env.learning import hyperparams
+    from microg_env.learning.vec_env import BatchedVecEnv
+
+    params = hyperparams.load("ppo", recipe_probe.ENV_ID)
+    env = recipe_probe.ProbeObservation(BatchedVecEnv.make(2, **params.env_kwargs), [], True)
+    env.seed(7)
+    obs = env.reset()
+    size = obs.shape[1] - recipe_probe.privileged_features(env.venv.env.core.episodes[0]).size
+    before = obs[:, size:].copy()
+    assert not np.allclose(before[0], before[1])  # two rigs, two drawn plants
+    for _ in range(2000):
+        obs, _, dones, infos = env.step(np.zeros((2, 1), dtype=np.float32))
+        if dones.any():
+            break
+    i = int(np.flatnonzero(dones)[0])
+    assert np.array_equal(infos[i]["terminal_observation"][size:], before[i])
+    assert not np.allclose(obs[i, size:], before[i])
+    current = recipe_probe.privileged_features(env.venv.env.core.episodes[i]).astype(np.float32)
+    assert np.array_equal(obs[i, size:], current)
+    env.close()
