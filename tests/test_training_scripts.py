@@ -22,6 +22,11 @@ TRAINING = Path(__file__).resolve().parents[1] / "training"
             ["--stack", "2", "--timesteps", "256", "--seeds", "2", "--scenarios", "training"],
             "| training | ",
         ),
+        (
+            "recipe_probe",
+            ["--privileged", "--blind", "height", "--timesteps", "256", "--seeds", "1", "--held-out-seeds", "0"],
+            "| training | ",
+        ),
     ],
 )
 @pytest.mark.slow
@@ -66,6 +71,15 @@ def test_probe_export_acts_as_the_trained_actor(recipe_probe, tmp_path):
         actions.append(expected)
         obs, *_ = env.step(expected)
     assert np.ptp(actions) > 0  # the check saw the actor act, not a constant
+    # the critic reads the privileged entries, the actor does not
+    import torch
+
+    full = torch.as_tensor(normalized.normalize_obs(np.zeros(normalized.observation_space.shape, np.float32)))[None]
+    told = full.clone()
+    told[0, len(OBSERVATION_INDEX) :] += 1.0
+    with torch.no_grad():
+        assert not torch.allclose(model.policy.predict_values(full), model.policy.predict_values(told))
+        assert torch.equal(model.policy.get_distribution(full).mode(), model.policy.get_distribution(told).mode())
 
 
 @pytest.mark.slow
@@ -74,15 +88,18 @@ def test_privileged_observation_follows_the_episode(recipe_probe):
     episode's terminal observation carries its own, the next episode's first observation the new one's."""
     import numpy as np
 
+    from microg_env.interface import OBSERVATION_INDEX
     from microg_env.learning import hyperparams
     from microg_env.learning.vec_env import BatchedVecEnv
 
     params = hyperparams.load("ppo", recipe_probe.ENV_ID)
-    env = recipe_probe.ProbeObservation(BatchedVecEnv.make(2, **params.env_kwargs), [], True)
+    height = OBSERVATION_INDEX["height"]
+    env = recipe_probe.ProbeObservation(BatchedVecEnv.make(2, **params.env_kwargs), [height], True)
     env.seed(7)
     obs = env.reset()
     size = obs.shape[1] - recipe_probe.privileged_features(env.venv.env.core.episodes[0]).size
     before = obs[:, size:].copy()
+    assert (obs[:, height] == 0.0).all()
     assert not np.allclose(before[0], before[1])  # two rigs, two drawn plants
     for _ in range(2000):
         obs, _, dones, infos = env.step(np.zeros((2, 1), dtype=np.float32))
@@ -90,6 +107,8 @@ def test_privileged_observation_follows_the_episode(recipe_probe):
             break
     i = int(np.flatnonzero(dones)[0])
     assert np.array_equal(infos[i]["terminal_observation"][size:], before[i])
+    assert infos[i]["terminal_observation"][height] == 0.0  # blind, before the reset and after it
+    assert (obs[:, height] == 0.0).all()
     assert not np.allclose(obs[i, size:], before[i])
     current = recipe_probe.privileged_features(env.venv.env.core.episodes[i]).astype(np.float32)
     assert np.array_equal(obs[i, size:], current)

@@ -5,11 +5,9 @@ returns table (training/returns_table.py). The changes:
 
 - ``--stack N``: memory. The normalised observations of the last N decisions stacked
   (stable-baselines3's ``VecFrameStack`` after ``VecNormalize``, as rl-baselines3-zoo's ``frame_stack``).
-- ``--privileged``: an asymmetric critic. The value function also sees the episode's true plant and
-  drive (the feed-forward's model of them, :func:`~microg_env.controllers.feedforward.plant_model`,
-  the pad, the QZS guide's friction) and its schedule (the weights, where they are placed, the
-  start); the actor sees the observation only (its features extractor zeros the rest), so the
-  deployed policy reads the sensors alone.
+- ``--privileged``: an asymmetric critic (unstacked only). The value function also sees the
+  episode's true plant and drive (:func:`privileged_features`); the actor sees the observation only
+  (its features extractor zeros the rest), so the deployed policy reads the sensors alone.
 - ``--blind NAMES``: observation entries neither the actor nor the critic reads (zeroed), e.g. the
   absolute positions ``support_position,height`` that place a held-out schedule outside the
   trained range.
@@ -51,18 +49,21 @@ from microg_env.learning.vec_env import BatchedVecEnv
 from microg_env.scenarios import HELD_OUT
 
 ENV_ID = ENV_IDS[0]
-#: The plant's fields the critic sees as they are (the cogging's phase goes in as its cosine and sine).
-PHASE = PLANT_FIELDS.index("cogging_phase")
+#: Where plant_model holds the cogging's phase (the critic gets its cosine and sine).
+COGGING_PHASE = PLANT_FIELDS.index("cogging_phase")
 
 
 def privileged_features(episode: Episode) -> np.ndarray:
-    """What the critic is told of an episode: its plant and drive, and its schedule (two weights)."""
+    """What the critic is told of an episode: the feed-forward's model of its plant and drive
+    (:func:`~microg_env.controllers.feedforward.plant_model`), the pad's K and D, the QZS guide's
+    friction, the torque filter; its schedule (two weights, the second's switch height, the start
+    height) and the balancer's drift rate."""
     params, scenario = episode.params, episode.scenario
     model = plant_model(params)
     loads = [*scenario.loads, *scenario.loads[:1]][:2]  # a one-weight schedule repeats its weight
     return np.array(
         [
-            *np.delete(model, PHASE), np.cos(model[PHASE]), np.sin(model[PHASE]),
+            *np.delete(model, COGGING_PHASE), np.cos(model[COGGING_PHASE]), np.sin(model[COGGING_PHASE]),
             params.pad.stiffness_n_per_m, params.pad.damping_n_s_per_m,
             params.qzs.guide_friction_n, params.qzs.guide_static_friction_n, params.servo.torque_filter_s,
             *(load.mass_kg for load in loads), loads[1].height_m or 0.0,
@@ -83,9 +84,8 @@ class ProbeObservation(VecEnvWrapper):
         super().__init__(venv, observation_space=space)
         self._ending: np.ndarray | None = None
 
-    @staticmethod
-    def _features(venv: BatchedVecEnv) -> np.ndarray:
-        return np.array([privileged_features(episode) for episode in venv.env.core.episodes])
+    def _features(self) -> np.ndarray:
+        return np.array([privileged_features(episode) for episode in self.venv.env.core.episodes])
 
     def _augment(self, observations: np.ndarray, features: np.ndarray) -> np.ndarray:
         observations = np.array(observations, dtype=np.float32)
@@ -96,15 +96,15 @@ class ProbeObservation(VecEnvWrapper):
 
     def reset(self) -> np.ndarray:
         observations = self.venv.reset()
-        return self._augment(observations, self._features(self.venv) if self.privileged else None)
+        return self._augment(observations, self._features() if self.privileged else None)
 
     def step_async(self, actions: np.ndarray) -> None:
-        self._ending = self._features(self.venv) if self.privileged else None  # the episodes this step may end
+        self._ending = self._features() if self.privileged else None  # the episodes this step may end
         self.venv.step_async(actions)
 
     def step_wait(self):
         observations, rewards, dones, infos = self.venv.step_wait()
-        starting = self._features(self.venv) if self.privileged else None
+        starting = self._features() if self.privileged else None
         for i in np.flatnonzero(dones):
             ending = self._ending[i] if self.privileged else None
             infos[i]["terminal_observation"] = self._augment(infos[i]["terminal_observation"], ending)
@@ -129,9 +129,13 @@ class AsymmetricPolicy(ActorCriticPolicy):
     the whole (privileged) observation, the actor's its first ``visible`` entries."""
 
     def __init__(self, *args, visible: int, **kwargs) -> None:
-        super().__init__(*args, share_features_extractor=False, **kwargs)
+        super().__init__(*args, **kwargs | {"share_features_extractor": False})
+        self.visible = visible
         self.pi_features_extractor = MaskedFlatten(self.observation_space, visible)
         self.features_extractor = self.pi_features_extractor
+
+    def _get_constructor_parameters(self) -> dict:
+        return super()._get_constructor_parameters() | {"visible": self.visible}  # PPO.load rebuilds it
 
 
 def train(stack: int, privileged: bool, blind: list[int], seed: int, timesteps: int):
@@ -216,6 +220,10 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [name for name in names if name not in OBSERVATION_INDEX]
     if unknown:
         parser.error(f"--blind: no observation entry {unknown[0]!r}; entries: {', '.join(OBSERVATION_INDEX)}")
+    if args.stack < 1:
+        parser.error(f"--stack must be at least 1, got {args.stack}")
+    if args.privileged and args.stack != 1:
+        parser.error("--privileged masks one observation's privileged entries: --stack 1")
     if args.out is not None and args.stack != 1:
         parser.error("--out exports an unstacked policy: --stack 1")
     blind = [OBSERVATION_INDEX[name] for name in names]
