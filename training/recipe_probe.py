@@ -45,6 +45,7 @@ from microg_env.envs.core import Episode
 from microg_env.experiments.comparison import TEST_SEED
 from microg_env.interface import OBSERVATION_INDEX
 from microg_env.learning import hyperparams
+from microg_env.learning.export import actor_layers
 from microg_env.learning.vec_env import BatchedVecEnv
 from microg_env.scenarios import HELD_OUT
 
@@ -82,12 +83,12 @@ class ProbeObservation(VecEnvWrapper):
         size = venv.observation_space.shape[0] + (privileged_features(drawn).size if privileged else 0)
         space = gym.spaces.Box(-np.inf, np.inf, (size,), np.float32)
         super().__init__(venv, observation_space=space)
-        self._ending: np.ndarray | None = None
+        self._features: np.ndarray | None = None  # each rig's current episode's, once drawn
 
-    def _features(self) -> np.ndarray:
-        return np.array([privileged_features(episode) for episode in self.venv.env.core.episodes])
+    def _features_of(self, rigs: np.ndarray) -> np.ndarray:
+        return np.array([privileged_features(self.venv.env.core.episodes[i]) for i in rigs])
 
-    def _augment(self, observations: np.ndarray, features: np.ndarray) -> np.ndarray:
+    def _augment(self, observations: np.ndarray, features: np.ndarray | None) -> np.ndarray:
         observations = np.array(observations, dtype=np.float32)
         observations[..., self.blind] = 0.0
         if self.privileged:
@@ -96,19 +97,19 @@ class ProbeObservation(VecEnvWrapper):
 
     def reset(self) -> np.ndarray:
         observations = self.venv.reset()
-        return self._augment(observations, self._features() if self.privileged else None)
-
-    def step_async(self, actions: np.ndarray) -> None:
-        self._ending = self._features() if self.privileged else None  # the episodes this step may end
-        self.venv.step_async(actions)
+        if self.privileged:
+            self._features = self._features_of(np.arange(self.num_envs))
+        return self._augment(observations, self._features)
 
     def step_wait(self):
         observations, rewards, dones, infos = self.venv.step_wait()
-        starting = self._features() if self.privileged else None
-        for i in np.flatnonzero(dones):
-            ending = self._ending[i] if self.privileged else None
+        ended = np.flatnonzero(dones)
+        for i in ended:
+            ending = self._features[i] if self.privileged else None
             infos[i]["terminal_observation"] = self._augment(infos[i]["terminal_observation"], ending)
-        return self._augment(observations, starting), rewards, dones, infos
+        if self.privileged and ended.size:  # the ended rigs' next episodes
+            self._features[ended] = self._features_of(ended)
+        return self._augment(observations, self._features), rewards, dones, infos
 
 
 class MaskedFlatten(FlattenExtractor):
@@ -180,21 +181,16 @@ def actor(model, normalized, stack: int, blind: list[int]):
 
 
 def export(model, normalized, blind: list[int], folder: Path, card: dict) -> None:
-    """The unstacked PPO actor (tanh, as the recipe's) as a policy folder on the observation alone:
-    the first layer's columns of privileged entries dropped, of blind ones zeroed (their statistics
-    the identity)."""
-    policy = model.policy
-    layers = [m for m in policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)] + [policy.action_net]
-    weights = [m.weight.detach().numpy().astype(np.float64) for m in layers]
-    biases = tuple(m.bias.detach().numpy().astype(np.float64) for m in layers)
+    """The unstacked actor as a policy folder on the observation alone: the first layer's columns
+    of privileged entries dropped, of blind ones zeroed (their statistics the identity)."""
+    weights, biases, activation, squash = actor_layers(model)
     size = len(OBSERVATION_INDEX)
-    weights[0] = weights[0][:, :size].copy()
-    weights[0][:, blind] = 0.0
+    first = weights[0][:, :size].copy()
+    first[:, blind] = 0.0
     mean, var = normalized.obs_rms.mean[:size].copy(), normalized.obs_rms.var[:size].copy()
     mean[blind], var[blind] = 0.0, 1.0
-    network = MLPPolicy(
-        tuple(weights), biases, "tanh", False, mean, var, float(normalized.clip_obs), float(normalized.epsilon)
-    )
+    clip, epsilon = float(normalized.clip_obs), float(normalized.epsilon)
+    network = MLPPolicy((first, *weights[1:]), biases, activation, squash, mean, var, clip, epsilon)
     folder.mkdir(parents=True, exist_ok=True)
     network.save(folder / NETWORK_FILE)
     (folder / CARD_FILE).write_text(json.dumps(card, indent=2) + "\n", encoding="utf-8")

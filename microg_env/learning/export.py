@@ -16,9 +16,10 @@ from microg_env.files import replace_folder
 MODEL_FILE, NORMALIZATION_FILE = "model.zip", "vecnormalize.pkl"
 
 
-def export_policy(model: Any, vecnormalize: Any | None) -> MLPPolicy:
-    """The deterministic actor of a PPO or SAC ``model`` and the observation statistics of
-    ``vecnormalize`` (None: no normalisation) as an :class:`MLPPolicy`."""
+def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], str, bool]:
+    """The deterministic actor of a PPO or SAC ``model``: its layers' weights and biases (float64,
+    the first on the whole observation the model was trained on), the activation between them and
+    whether its output is squashed (SAC) rather than clipped (PPO)."""
     import torch.nn as nn
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.torch_layers import FlattenExtractor
@@ -39,6 +40,15 @@ def export_policy(model: Any, vecnormalize: Any | None) -> MLPPolicy:
     activation = {frozenset({"Tanh"}): "tanh", frozenset({"ReLU"}): "relu"}.get(frozenset(kinds))
     if activation is None:
         raise ValueError(f"can export tanh or ReLU networks, got {sorted(kinds)}")
+    weights = tuple(m.weight.detach().cpu().numpy().astype(np.float64) for m in linear)
+    biases = tuple(m.bias.detach().cpu().numpy().astype(np.float64) for m in linear)
+    return weights, biases, activation, squash
+
+
+def export_policy(model: Any, vecnormalize: Any | None) -> MLPPolicy:
+    """The deterministic actor of a PPO or SAC ``model`` (:func:`actor_layers`) and the observation
+    statistics of ``vecnormalize`` (None: no normalisation) as an :class:`MLPPolicy`."""
+    weights, biases, activation, squash = actor_layers(model)
     size = model.observation_space.shape[0]
     if vecnormalize is not None and vecnormalize.norm_obs:
         mean, var = vecnormalize.obs_rms.mean, vecnormalize.obs_rms.var
@@ -46,8 +56,8 @@ def export_policy(model: Any, vecnormalize: Any | None) -> MLPPolicy:
     else:  # the identity: zero mean, unit variance (epsilon 0), no clip in practice
         mean, var, clip_obs, epsilon = np.zeros(size), np.ones(size), float(np.finfo(np.float32).max), 0.0
     return MLPPolicy(
-        tuple(m.weight.detach().cpu().numpy().astype(np.float64) for m in linear),
-        tuple(m.bias.detach().cpu().numpy().astype(np.float64) for m in linear),
+        weights,
+        biases,
         activation,
         squash,
         np.asarray(mean, dtype=np.float64),
