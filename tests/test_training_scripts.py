@@ -27,6 +27,11 @@ TRAINING = Path(__file__).resolve().parents[1] / "training"
             ["--privileged", "--blind", "height", "--timesteps", "256", "--seeds", "1", "--held-out-seeds", "0"],
             "| training | ",
         ),
+        (
+            "recipe_probe",
+            ["--algo", "sac", "--blind", "height", "--timesteps", "256", "--seeds", "1", "--held-out-seeds", "0"],
+            "sac, stack 1, privileged False, blind ['height'], seed 0: 256 steps",
+        ),
     ],
 )
 @pytest.mark.slow
@@ -54,7 +59,7 @@ def test_probe_export_acts_as_the_trained_actor(recipe_probe, tmp_path):
     from microg_env.interface import OBSERVATION_INDEX
 
     blind = [OBSERVATION_INDEX["support_position"], OBSERVATION_INDEX["height"]]
-    model, normalized = recipe_probe.train(1, True, blind, seed=3, timesteps=512)
+    model, normalized = recipe_probe.train("ppo", 1, True, blind, seed=3, timesteps=512)
     recipe_probe.export(model, normalized, blind, tmp_path, {"env_kwargs": gym.spec(recipe_probe.ENV_ID).kwargs})
     _, network = check_policy_folder(tmp_path)
     assert network.weights[0].shape[1] == len(OBSERVATION_INDEX)
@@ -80,6 +85,43 @@ def test_probe_export_acts_as_the_trained_actor(recipe_probe, tmp_path):
     with torch.no_grad():
         assert not torch.allclose(model.policy.predict_values(full), model.policy.predict_values(told))
         assert torch.equal(model.policy.get_distribution(full).mode(), model.policy.get_distribution(told).mode())
+
+
+def test_probe_refuses_a_privileged_sac(recipe_probe, capsys):
+    """The asymmetric critic is PPO's: ``--privileged`` with ``--algo sac`` is refused, naming both."""
+    with pytest.raises(SystemExit) as exit_:
+        recipe_probe.main(["--algo", "sac", "--privileged"])
+    assert exit_.value.code == 2
+    assert "--privileged is PPO's asymmetric actor-critic: --algo ppo" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_probe_exports_a_sac_actor(recipe_probe, tmp_path):
+    """A SAC probe's export is its squashed deterministic actor, blind entries read by nobody."""
+    import gymnasium as gym
+    import numpy as np
+
+    from microg_env.controllers.registry import check_policy_folder
+    from microg_env.interface import OBSERVATION_INDEX
+
+    blind = [OBSERVATION_INDEX["height"]]
+    model, normalized = recipe_probe.train("sac", 1, False, blind, seed=3, timesteps=300)
+    recipe_probe.export(model, normalized, blind, tmp_path, {"env_kwargs": gym.spec(recipe_probe.ENV_ID).kwargs})
+    _, network = check_policy_folder(tmp_path)
+    assert network.squash
+    act = recipe_probe.actor(model, normalized, 1, blind)
+    env = gym.make(recipe_probe.ENV_ID)
+    obs, _ = env.reset(seed=1000)
+    actions = []
+    for _ in range(30):
+        expected = act(obs)
+        shifted = obs.copy()
+        shifted[blind] += 1.0
+        for seen in (obs, shifted):
+            assert np.allclose(network.predict(seen)[0], expected, atol=1e-5)
+        actions.append(expected)
+        obs, *_ = env.step(expected)
+    assert np.ptp(actions) > 0
 
 
 @pytest.mark.slow

@@ -1,11 +1,12 @@
-"""Probes of the learned residual's recipe: the v3 recipe (ppo.yml, ``MicroGravityLanding-Residual-v3``)
-trained with one change, and its returns paired with the zero residual's (``adaptive`` alone) on the
-same seeds: the training draws and the held-out schedules (``scenarios.HELD_OUT``), as in the
-returns table (training/returns_table.py). The changes:
+"""Probes of the learned residual's recipe: the v3 recipe (``MicroGravityLanding-Residual-v3`` with
+the packaged hyperparameters of ``--algo``: ppo.yml, the default, or sac.yml) trained with one
+change, and its returns paired with the zero residual's (``adaptive`` alone) on the same seeds:
+the training draws and the held-out schedules (``scenarios.HELD_OUT``), as in the returns table
+(training/returns_table.py). The changes:
 
 - ``--stack N``: memory. The normalised observations of the last N decisions stacked
   (stable-baselines3's ``VecFrameStack`` after ``VecNormalize``, as rl-baselines3-zoo's ``frame_stack``).
-- ``--privileged``: an asymmetric critic (unstacked only). The value function also sees the
+- ``--privileged``: an asymmetric critic (PPO, unstacked only). The value function also sees the
   episode's true plant and drive (:func:`privileged_features`); the actor sees the observation only
   (its features extractor zeros the rest), so the deployed policy reads the sensors alone.
 - ``--blind NAMES``: observation entries neither the actor nor the critic reads (zeroed), e.g. the
@@ -18,8 +19,8 @@ a zero weight on a blind entry) as a policy folder that ``microg compare --contr
 runs; a stacked policy needs a history ``PolicyController`` does not keep. ``--seeds 0
 --held-out-seeds 0`` skips the returns (docs/controllers.md, "Probes of the recipe").
 
-Run: ``python training/recipe_probe.py [--stack 1] [--privileged] [--blind NAMES] --seed 0
-[--timesteps 1000000] [--seeds 100] [--held-out-seeds 13] [--scenarios training,heavy-second,...]
+Run: ``python training/recipe_probe.py [--algo ppo|sac] [--stack 1] [--privileged] [--blind NAMES] --seed 0
+[--timesteps N] [--seeds 100] [--held-out-seeds 13] [--scenarios training,heavy-second,...]
 [--out FOLDER]``.
 """
 
@@ -139,12 +140,13 @@ class AsymmetricPolicy(ActorCriticPolicy):
         return super()._get_constructor_parameters() | {"visible": self.visible}  # PPO.load rebuilds it
 
 
-def train(stack: int, privileged: bool, blind: list[int], seed: int, timesteps: int):
-    """The v3 recipe for ``timesteps`` steps with the probe's change: the model and its VecNormalize (frozen)."""
-    from stable_baselines3 import PPO
+def train(algo: str, stack: int, privileged: bool, blind: list[int], seed: int, timesteps: int):
+    """The v3 recipe of ``algo`` (its packaged hyperparameters) for ``timesteps`` steps with the
+    probe's change: the model and its VecNormalize (frozen)."""
+    from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
 
-    params = hyperparams.load("ppo", ENV_ID)
+    params = hyperparams.load(algo, ENV_ID)
     batched = BatchedVecEnv.make(params.n_envs, **params.env_kwargs)
     probed = ProbeObservation(batched, blind, privileged) if privileged or blind else batched
     normalized = VecNormalize(probed, **params.normalize)
@@ -155,7 +157,7 @@ def train(stack: int, privileged: bool, blind: list[int], seed: int, timesteps: 
         policy = AsymmetricPolicy
         visible = batched.observation_space.shape[0]
         arguments["policy_kwargs"] = {**arguments.get("policy_kwargs", {}), "visible": visible}
-    model = PPO(policy, env, seed=seed, device="cpu", verbose=0, **arguments)
+    model = {"ppo": PPO, "sac": SAC}[algo](policy, env, seed=seed, device="cpu", verbose=0, **arguments)
     env.seed(seed)
     model.learn(timesteps)
     normalized.training = False
@@ -198,11 +200,12 @@ def export(model, normalized, blind: list[int], folder: Path, card: dict) -> Non
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="the learner (default ppo)")
     parser.add_argument("--stack", type=int, default=1, help="decisions stacked (1: no memory, the default)")
     parser.add_argument("--privileged", action="store_true", help="the critic sees the plant and schedule")
     parser.add_argument("--blind", default="", help="comma-separated observation entries nobody reads")
     parser.add_argument("--seed", type=int, default=0, help="training seed")
-    parser.add_argument("--timesteps", type=int, default=1_000_000, help="training steps (default the recipe's)")
+    parser.add_argument("--timesteps", type=int, help="training steps (default the recipe's: 10^6 PPO, 3 x 10^5 SAC)")
     parser.add_argument("--seeds", type=int, default=100, help="training draws, seeds from 1000 (default 100)")
     parser.add_argument("--held-out-seeds", type=int, default=13, help="seeds per held-out schedule (default 13)")
     parser.add_argument(
@@ -218,17 +221,20 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--blind: no observation entry {unknown[0]!r}; entries: {', '.join(OBSERVATION_INDEX)}")
     if args.stack < 1:
         parser.error(f"--stack must be at least 1, got {args.stack}")
+    if args.privileged and args.algo != "ppo":
+        parser.error("--privileged is PPO's asymmetric actor-critic: --algo ppo")
     if args.privileged and args.stack != 1:
         parser.error("--privileged masks one observation's privileged entries: --stack 1")
     if args.out is not None and args.stack != 1:
         parser.error("--out exports an unstacked policy: --stack 1")
     blind = [OBSERVATION_INDEX[name] for name in names]
+    timesteps = hyperparams.load(args.algo, ENV_ID).n_timesteps if args.timesteps is None else args.timesteps
     torch.set_num_threads(1)
     start = time.perf_counter()
-    model, normalized = train(args.stack, args.privileged, blind, args.seed, args.timesteps)
+    model, normalized = train(args.algo, args.stack, args.privileged, blind, args.seed, timesteps)
     wall = time.perf_counter() - start
-    change = f"stack {args.stack}, privileged {args.privileged}, blind {names or 'none'}"
-    print(f"{change}, seed {args.seed}: {args.timesteps} steps in {wall:.0f} s", flush=True)
+    change = f"{args.algo}, stack {args.stack}, privileged {args.privileged}, blind {names or 'none'}"
+    print(f"{change}, seed {args.seed}: {timesteps} steps in {wall:.0f} s", flush=True)
     if args.out is not None:
         command = "python training/recipe_probe.py " + " ".join(argv if argv is not None else sys.argv[1:])
         card = {
@@ -236,9 +242,10 @@ def main(argv: list[str] | None = None) -> int:
             "env_kwargs": gym.spec(ENV_ID).kwargs,
             "command": command,
             "seed": args.seed,
-            "timesteps": args.timesteps,
+            "algo": args.algo,
+            "timesteps": timesteps,
             "wall_s": round(wall, 1),
-            "probe": {"stack": args.stack, "privileged": args.privileged, "blind": names},
+            "probe": {"algo": args.algo, "stack": args.stack, "privileged": args.privileged, "blind": names},
         }
         export(model, normalized, blind, args.out, card)
         print(f"exported to {args.out}")
