@@ -64,6 +64,22 @@ RESIDUAL_HIGHPASS_ORDERS = (1, 2)  # the lowest and highest
 RESIDUAL_HIGHPASS_RANGE_HZ = (0.0, 100.0)
 
 
+def hidden_entries(names: object) -> tuple[str, ...]:
+    """Observation entries an agent is shown as 0 (``hidden_observations``): distinct names of
+    :data:`OBSERVATION_SCALES`, as a tuple, or a FieldError naming the bad one."""
+    field = "hidden_observations"
+    if isinstance(names, str) or not isinstance(names, list | tuple):
+        raise validate.FieldError(f"{field} must be a list of observation entries, got {validate.shown(names)}", field)
+    for i, name in enumerate(names):
+        if not isinstance(name, str) or name not in OBSERVATION_INDEX:
+            raise validate.FieldError(
+                f"{field}[{i}] must be one of {', '.join(OBSERVATION_INDEX)}, got {validate.shown(name)}", field
+            )
+        if name in names[:i]:
+            raise validate.FieldError(f"{field}[{i}]: {name!r} is given twice", field)
+    return tuple(names)
+
+
 def highpass_order(order: object) -> int:
     """A residual high-pass's order (:data:`RESIDUAL_HIGHPASS_ORDERS`), or a FieldError naming it."""
     return validate.integer("residual_highpass_order", order, *RESIDUAL_HIGHPASS_ORDERS)

@@ -36,6 +36,7 @@ from microg_env.interface import (
     OBSERVATION_SCALES,
     RESIDUAL_HIGHPASS_RANGE_HZ,
     RESIDUAL_LIMIT_M,
+    hidden_entries,
     highpass_gain,
     highpass_order,
     residual_setpoint,
@@ -151,8 +152,8 @@ class PolicyController(VectorController):
     action is a setpoint for x, ``action * residual_limit_m``, that the base holds while commanding
     the drive every period (the residual mode of ``MicroGravityLanding-v1``); without one the action
     is the speed command, held. With ``residual_highpass_hz`` the setpoint is the action high-passed
-    (:func:`~microg_env.interface.residual_setpoint`, ``residual_highpass_order`` stages), as the
-    environment's. An all-zero residual is
+    (:func:`~microg_env.interface.residual_setpoint`, ``residual_highpass_order`` stages), and the
+    ``hidden_observations`` read 0 to the policy, as the environment's. An all-zero residual is
     exactly the base controller. Many rigs' observations go through the policy in one batch.
     """
 
@@ -175,6 +176,7 @@ class PolicyController(VectorController):
         residual_highpass_hz: float = 0.0,
         control_period_s: float = CONTROL_PERIOD_S,
         residual_highpass_order: int = 1,
+        hidden_observations: tuple[str, ...] = (),
     ) -> None:
         super().__init__(*(() if base is None else (base,)))
         self.policy = policy
@@ -185,6 +187,7 @@ class PolicyController(VectorController):
         highpass_hz = validate.between("residual_highpass_hz", residual_highpass_hz, *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
         self._residual_gain = highpass_gain(highpass_hz, self.decision_period * control_period_s)
         self._second_stage = highpass_order(residual_highpass_order) == 2
+        self._hidden = [OBSERVATION_INDEX[name] for name in hidden_entries(hidden_observations)]
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         due = np.empty(ids.size, dtype=np.bool_)
@@ -195,6 +198,7 @@ class PolicyController(VectorController):
             seen[:, OBSERVATION_INDEX["base_command"]] = (
                 self._base_command_m_s[acting] / OBSERVATION_SCALES["base_command"]
             )
+            seen[:, self._hidden] = 0.0
             action, _ = self.policy.predict(seen, deterministic=self.deterministic)
             self._action[acting] = np.clip(np.asarray(action, dtype=np.float32).reshape(-1), -1.0, 1.0)
             if self.base is not None:

@@ -21,7 +21,13 @@ from microg_env.controllers.base import Controller
 from microg_env.controllers.feedforward import AdaptiveFeedforward, Feedforward, Oracle
 from microg_env.controllers.pid import PID, load_gains
 from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy, PolicyController
-from microg_env.interface import ACTION_MODES, RESIDUAL_HIGHPASS_RANGE_HZ, RESIDUAL_LIMIT_M, highpass_order
+from microg_env.interface import (
+    ACTION_MODES,
+    RESIDUAL_HIGHPASS_RANGE_HZ,
+    RESIDUAL_LIMIT_M,
+    hidden_entries,
+    highpass_order,
+)
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, RigParams
 from microg_env.validate import FieldError
 
@@ -115,6 +121,7 @@ ACTING_KEYS = (
     "residual_limit_m",
     "residual_highpass_hz",
     "residual_highpass_order",
+    "hidden_observations",
 )
 
 
@@ -130,6 +137,7 @@ def _check_deployment(env: dict[str, Any]) -> None:
     validate.positive("residual_limit_m", env.get("residual_limit_m", RESIDUAL_LIMIT_M), "m", 1e-3)
     validate.between("residual_highpass_hz", env.get("residual_highpass_hz", 0.0), *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
     highpass_order(env.get("residual_highpass_order", 1))
+    hidden_entries(env.get("hidden_observations", ()))
 
 
 def shipped_policy_folder(name: str) -> Path:
@@ -175,4 +183,5 @@ def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyContro
         residual_highpass_hz=float(env_kwargs.get("residual_highpass_hz", 0.0)),
         control_period_s=period,
         residual_highpass_order=env_kwargs.get("residual_highpass_order", 1),
+        hidden_observations=tuple(env_kwargs.get("hidden_observations", ())),
     )

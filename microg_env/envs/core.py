@@ -60,6 +60,7 @@ TASK_ATTRIBUTES = (
     "imperfections",
     "domain_randomization",
     "sensor_set",
+    "hidden_observations",
     "physics_step_s",
     "control_period_s",
     "frame_skip",
@@ -147,6 +148,7 @@ class LandingCore:
             setattr(self, name, getattr(settings, name))
         self.base_params = settings.params
         self._missing = np.array([OBSERVATION_INDEX[name] for name in SENSOR_SETS[self.sensor_set]], dtype=np.int64)
+        self._hidden = np.array([OBSERVATION_INDEX[name] for name in self.hidden_observations], dtype=np.int64)
         for each in set(self.scenarios):
             _check_reset_noise(self.reset_noise_scale, each)
 
@@ -535,6 +537,13 @@ class LandingCore:
             self.accelerometer, self.placed_load_kg, self.next_load, self.command, setpoint,
             self.reference_weight_n, self.reward_x,
         )  # fmt: skip
+
+    def shown(self) -> np.ndarray:
+        """A copy of every rig's observation as the agent is shown it: its ``hidden_observations``
+        read 0 (the base controller of a residual reads :attr:`observation`, all of it)."""
+        observations = self.observation.copy()
+        observations[:, self._hidden] = 0.0
+        return observations
 
     def info(self, ids: np.ndarray, codes: np.ndarray) -> dict[str, np.ndarray]:
         """The true physical state of rigs ``ids`` (:data:`INFO_KEYS`), one array entry per rig; new

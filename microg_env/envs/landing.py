@@ -120,6 +120,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``imperfections`` | which non-ideal effects are on (or their flags as a dict) |
     | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
     | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force and accelerometer read 0) |
+    | ``hidden_observations`` | observation entries the agent is shown as 0 (a residual's base reads them) |
     | ``params`` | the rig (the scenario's explicit overrides are applied on top) |
     | ``xml_file`` | an MJCF template other than the packaged ``scene.xml`` |
     | ``reward_scale_m`` | x0 of the reward, m |
@@ -232,7 +233,7 @@ class MicroGravityLandingEnv(gym.Env):
         info = self._info(np.zeros(1, dtype=np.int64))
         if self.render_mode == "human":
             self.render()
-        return self.core.observation[0].copy(), info
+        return self.core.shown()[0], info
 
     def step(self, action):
         core = self.core
@@ -243,7 +244,7 @@ class MicroGravityLandingEnv(gym.Env):
         reward, codes, truncated, _ = core.step(_ONE, actions, [self.np_random])
         if before is not None and before != int(core.steps[0]) // self._human_every:
             self.render()
-        observation = core.observation[0].copy()
+        observation = core.shown()[0]
         return observation, float(reward[0]), bool(codes[0]), bool(truncated[0]), self._info(codes)
 
     def _info(self, codes: np.ndarray) -> dict[str, Any]:

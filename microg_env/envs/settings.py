@@ -21,6 +21,7 @@ from microg_env.interface import (
     RESIDUAL_HIGHPASS_RANGE_HZ,
     RESIDUAL_LIMIT_M,
     SENSOR_SETS,
+    hidden_entries,
     highpass_order,
 )
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
@@ -51,6 +52,7 @@ class TaskSettings:
     imperfections: Imperfections | Mapping | None = None
     domain_randomization: DomainRandomization | Mapping | bool | str | None = None
     sensor_set: str = "extended"
+    hidden_observations: tuple[str, ...] = ()
     params: RigParams | None = None
     xml_file: str | None = None
     reward_scale_m: float = 1e-8
@@ -70,6 +72,7 @@ class TaskSettings:
         put("imperfections", _imperfections(self.imperfections))
         put("domain_randomization", _randomization(self.domain_randomization))
         validate.choice("sensor_set", self.sensor_set, tuple(SENSOR_SETS))
+        put("hidden_observations", hidden_entries(self.hidden_observations))
         put("params", RigParams() if self.params is None else self.params)
         validate.instance("params", self.params, RigParams)
         put("physics_step_s", check_physics_step(self.physics_step_s))

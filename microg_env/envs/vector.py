@@ -109,7 +109,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
             raise
         self._autoreset[ids] = False
         self._started[ids] = True
-        return self.core.observation.copy(), self._info(ids, np.zeros(ids.size, dtype=np.int64))
+        return self.core.shown(), self._info(ids, np.zeros(ids.size, dtype=np.int64))
 
     def _seed_list(self, seed: int | Sequence[int | None] | None) -> list[int | None]:
         if seed is None:
@@ -144,7 +144,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
             rewards[stepping], codes[stepping], truncated[stepping] = reward, code, cut
         terminated = codes != 0
         ended = terminated | truncated
-        observations = core.observation.copy()
+        observations = core.shown()
         info = self._info(self._all, codes)
         if self.autoreset_mode == AutoresetMode.SAME_STEP and ended.any():
             done = self._all[ended]
@@ -153,7 +153,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
                 final_obs[i] = observations[i].copy()
             final_info = self._info(done, codes[done])
             core.reset(done, self._rngs)
-            observations[done] = core.observation[done]
+            observations[done] = core.shown()[done]
             after = core.info(done, np.zeros(done.size, dtype=np.int64))
             for key in INFO_KEYS:
                 info[key][done] = after[key]

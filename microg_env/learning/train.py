@@ -58,6 +58,7 @@ ENV_IDS = (
     "MicroGravityLanding-Residual-v1",
     "MicroGravityLanding-Residual-v2",
     "MicroGravityLanding-Residual-v3",
+    "MicroGravityLanding-Residual-v4",
 )
 #: Folders and files of a run.
 CHECKPOINTS, LATEST, POLICY, EVALUATIONS, LOG = "checkpoints", "latest.json", "policy", "evaluations.json", "train.log"

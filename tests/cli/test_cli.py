@@ -611,7 +611,8 @@ def _conf_cases():
             if (key, value) in {("gamma", "0"), ("clip_range", "1.5"), ("learning_rate", "1.5")}:
                 continue  # accepted by the algorithm (gamma 0: myopic; the others are numbers)
             yield f"conf {key}={value}", {**entry, key: yaml.safe_load(value)}
-    for key, value in [("condition", 9), ("action_mode", "jump"), ("base_controller", "me"), ("decision_period", 0)]:
+    env_cases = [("condition", 9), ("action_mode", "jump"), ("base_controller", "me"), ("decision_period", 0)]
+    for key, value in [*env_cases, ("hidden_observations", ["heights"])]:
         yield f"conf env_kwargs.{key}={value}", {**entry, "env_kwargs": {**entry["env_kwargs"], key: value}}
     yield "conf net_arch=[-1]", {**entry, "policy_kwargs": "dict(net_arch=[-1])"}  # torch's RuntimeError
 
@@ -679,7 +680,7 @@ def _policy_cases():
                 text = json.dumps(bad, allow_nan=False)
             yield f"policy env_kwargs.{key}={value}", text
     for value in BAD_VALUES:
-        if value != "{a: 1}":  # a mapping: deployment reads its five keys, each defaulted when absent
+        if value != "{a: 1}":  # a mapping: deployment reads its acting keys, each defaulted when absent
             yield f"policy env_kwargs={value}", json.dumps({**card, "env_kwargs": yaml.safe_load(value)})
 
 

@@ -17,6 +17,7 @@ from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.envs.vector import MicroGravityLandingVectorEnv
 from microg_env.imperfections import DomainRandomization
+from microg_env.interface import OBSERVATION_INDEX
 from microg_env.rollout.batch import EpisodeSpec, run_batch
 from microg_env.rollout.episode import run_episode
 from microg_env.scenarios import LoadStep, Scenario, condition
@@ -77,12 +78,15 @@ def test_a_vector_env_of_one_rig_runs_on_the_batch_and_equals_the_single_env():
 def test_steps_exactly_as_a_sync_vector_env_of_single_envs_through_autoresets(mode):
     """Gymnasium's vector contract, checked against its own SyncVectorEnv: spaces, seeding,
     observations, rewards, terminations (large actions hit the guide's end), truncations, infos
-    and autoresets, in both autoreset modes."""
+    and autoresets, in both autoreset modes; the hidden entries read 0 in every observation,
+    final ones included."""
     n = 3
     schedules = [replace(SHORT, duration_s=duration) for duration in (0.04, 0.023, 0.031)]  # rigs end apart
-    ours = MicroGravityLandingVectorEnv(n, autoreset_mode=mode, scenarios=schedules, domain_randomization=True)
+    settings = {"domain_randomization": True, "hidden_observations": ("height", "x_rate")}
+    hidden = [OBSERVATION_INDEX["height"], OBSERVATION_INDEX["x_rate"]]
+    ours = MicroGravityLandingVectorEnv(n, autoreset_mode=mode, scenarios=schedules, **settings)
     theirs = SyncVectorEnv(
-        [partial(MicroGravityLandingEnv, scenario=s, domain_randomization=True) for s in schedules],
+        [partial(MicroGravityLandingEnv, scenario=s, **settings) for s in schedules],
         autoreset_mode=mode,
     )
     assert ours.single_observation_space == theirs.single_observation_space
@@ -97,6 +101,9 @@ def test_steps_exactly_as_a_sync_vector_env_of_single_envs_through_autoresets(mo
         actions = (rng.uniform(-1, 1, size=(n, 1)) * scale).astype(np.float32)
         mine, sync = ours.step(actions), theirs.step(actions)
         assert data_equivalence(mine, sync, exact=True), f"step {step}"
+        assert not mine[0][:, hidden].any()
+        if "final_obs" in mine[4]:
+            assert not any(final[hidden].any() for final in mine[4]["final_obs"][mine[4]["_final_obs"]])
         ended += int(np.sum(mine[2] | mine[3]))
         partly += bool(0 < np.sum(mine[2] | mine[3]) < n)
         if mode == AutoresetMode.SAME_STEP and "final_info" in mine[4]:

@@ -20,6 +20,7 @@ from microg_env.analysis.summary import control_cost
 from microg_env.controllers import MLPPolicy, make_controller
 from microg_env.controllers.registry import deployed_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
+from microg_env.interface import OBSERVATION_INDEX
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import export_policy, write_policy_folder
 from microg_env.learning.train import TrainingInterrupted, TrainSettings, resolve, resumed_run, session_seed, train
@@ -136,19 +137,25 @@ def _random_policy(seed: int) -> MLPPolicy:
     )
 
 
-@pytest.mark.parametrize(("highpass_hz", "order"), [(0.0, 1), (2.0, 1), (2.0, 2)])
-def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpass_hz, order):
+@pytest.mark.parametrize(
+    ("highpass_hz", "order", "hidden"),
+    [(0.0, 1, ()), (2.0, 1, ()), (2.0, 2, ()), (2.0, 2, ("support_position", "height"))],
+)
+def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpass_hz, order, hidden):
     """The deployed composition (policy + base, decision period, rebuilt observation, the
-    residual's high-pass) is the training environment's, bit for bit, for a policy that moves the
-    setpoint every decision; the setpoints are the actions, or at 2 Hz the actions through
-    y_n = a (y_(n-1) + (u_n - u_(n-1)) 1 um) with a = tau / (tau + 5 ms), tau = 1 / (2 pi 2 Hz),
-    once or twice in cascade."""
+    residual's high-pass, the entries the policy is not shown) is the training environment's, bit
+    for bit, for a policy that moves the setpoint every decision; the setpoints are the actions, or
+    at 2 Hz the actions through y_n = a (y_(n-1) + (u_n - u_(n-1)) 1 um) with a = tau / (tau + 5 ms),
+    tau = 1 / (2 pi 2 Hz), once or twice in cascade."""
     policy = _random_policy(3)
     highpass = {"residual_highpass_hz": highpass_hz, "residual_highpass_order": order}
+    if hidden:
+        highpass["hidden_observations"] = hidden
     residual_env = MicroGravityLandingEnv(condition=3, **RESIDUAL, **highpass)
     observation, info = residual_env.reset(seed=4)
     xs, commands, actions, setpoints = [], [], [], []
     for _ in range(600):  # 3 s
+        assert all(observation[OBSERVATION_INDEX[name]] == 0.0 for name in hidden)
         action = policy.predict(observation)[0]
         observation, _, _, _, info = residual_env.step(action)
         xs.append(info["x_m"])
@@ -741,6 +748,12 @@ RESIDUAL_IDS = {
         "residual_highpass_hz": 2.0,
         "residual_highpass_order": 2,
     },
+    "MicroGravityLanding-Residual-v4": {
+        "residual_limit_m": 3e-6,
+        "residual_highpass_hz": 2.0,
+        "residual_highpass_order": 2,
+        "hidden_observations": ("support_position", "height"),
+    },
 }
 
 
@@ -762,11 +775,13 @@ def test_the_residual_task_is_registered_with_its_defaults_and_passes_check_env(
 
 
 def test_a_zero_action_is_the_base_controller_on_every_version_of_the_residual_task():
-    """v2's high-pass passes a zero residual as zero, so its zero action is v1's, bit for bit, and
-    the two share the zero residual's return as their reward_threshold."""
+    """The high-pass passes a zero residual as zero and the base controller reads every sensor
+    whatever the agent is shown, so every version's zero action is v1's, bit for bit (v4's agent
+    sees 0 in its hidden entries), and they share the zero residual's return as their
+    reward_threshold."""
     import gymnasium as gym
 
-    runs = []
+    runs = {}
     for env_id in RESIDUAL_IDS:
         env = gym.make(env_id)
         observations, rewards = [env.reset(seed=7)[0]], []
@@ -774,9 +789,15 @@ def test_a_zero_action_is_the_base_controller_on_every_version_of_the_residual_t
             observation, reward, *_ = env.step(np.zeros(1, dtype=np.float32))
             observations.append(observation)
             rewards.append(reward)
-        runs.append((np.array(observations), rewards))
-    np.testing.assert_array_equal(runs[0][0], runs[1][0])
-    assert runs[0][1] == runs[1][1]
+        runs[env_id] = (np.array(observations), rewards)
+    v1_observations, v1_rewards = runs[RESIDUAL_ID]
+    for env_id, (observations, rewards) in runs.items():
+        assert rewards == v1_rewards, env_id
+        hidden = [OBSERVATION_INDEX[name] for name in RESIDUAL_IDS[env_id].get("hidden_observations", ())]
+        shown = v1_observations.copy()
+        shown[:, hidden] = 0.0
+        np.testing.assert_array_equal(observations, shown, err_msg=env_id)
+    assert v1_observations[:, OBSERVATION_INDEX["height"]].all()  # what v4 hides is there to hide
 
 
 def test_validation_on_the_residual_task_drives_a_speed_environment():
