@@ -1,5 +1,5 @@
 """The analysis scripts behind the adaptive baseline's settings, the partial oracles of docs/controllers.md, its
-returns table and the recipe probes run, and the probes' asymmetric critic and export hold."""
+returns table, the recipe probes and the seed selection run, and the probes' asymmetric critic and export hold."""
 
 from __future__ import annotations
 
@@ -155,3 +155,25 @@ def test_privileged_observation_follows_the_episode(recipe_probe):
     current = recipe_probe.privileged_features(env.venv.env.core.episodes[i]).astype(np.float32)
     assert np.array_equal(obs[i, size:], current)
     env.close()
+
+
+@pytest.mark.slow
+def test_select_seed_scores_runs_on_the_40_validation_episodes(monkeypatch, tmp_path, capsys):
+    """The seed selection of docs/controllers.md: the shipped v3 policy's 40-episode control cost
+    (0.3522) and the zero residual's (0.3811), as documented; runs of two tasks are refused."""
+    import shutil
+
+    from microg_env.controllers.registry import shipped_policy_folder
+
+    monkeypatch.syspath_prepend(str(TRAINING))
+    select_seed = importlib.import_module("select_seed")
+    runs = [tmp_path / "v3", tmp_path / "v1"]
+    for run, name in zip(runs, ("residual-ppo-adaptive", "residual-ppo"), strict=True):
+        shutil.copytree(shipped_policy_folder(name), run / "policy")
+    assert select_seed.main([str(runs[0])]) == 0
+    out = capsys.readouterr().out
+    assert "| zero residual (adaptive) |  | 0.3811 |" in out
+    assert f"| {runs[0]} | 1 | 0.3522 |" in out
+    assert out.strip().endswith(f"lowest control cost: {runs[0]}")
+    with pytest.raises(SystemExit, match="trained on another task"):
+        select_seed.main([str(run) for run in runs])

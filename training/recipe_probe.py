@@ -35,7 +35,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch
-from returns_table import ENV_IDS, episode_return, make_env
+from returns_table import episode_return, make_env
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.vec_env import VecEnvWrapper
@@ -50,7 +50,7 @@ from microg_env.learning.export import actor_layers
 from microg_env.learning.vec_env import BatchedVecEnv
 from microg_env.scenarios import HELD_OUT
 
-ENV_ID = ENV_IDS[0]
+ENV_ID = "MicroGravityLanding-Residual-v3"
 #: Where plant_model holds the cogging's phase (the critic gets its cosine and sine).
 COGGING_PHASE = PLANT_FIELDS.index("cogging_phase")
 

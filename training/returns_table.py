@@ -1,8 +1,9 @@
-"""The returns table of the learning task (MicroGravityLanding-Residual-v3, -v2 or -v1): what each controller earns.
+"""The returns table of the learning task (MicroGravityLanding-Residual-v4 to -v1): what each controller earns.
 
 Every controller runs in the residual environment with the id's defaults (a residual x setpoint on
-`adaptive`, held 5 control periods: +-1 um in v1, +-3 um high-passed at 2 Hz in v2, twice in v3;
-plants and drives drawn by ``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero
+`adaptive`, held 5 control periods: +-1 um in v1, +-3 um high-passed at 2 Hz in v2, twice in v3,
+the absolute positions hidden from the agent in v4; plants and drives drawn by
+``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero
 residual`` (`adaptive` alone), the other classical controllers as the base with a zero residual
 (an all-zero residual is exactly its base) and learned policies (shipped names or policy folders
 trained on this task). A
@@ -36,7 +37,7 @@ from microg_env.experiments.comparison import TEST_SEED
 from microg_env.scenarios import comparison_scenarios
 
 #: The learning task's ids, the newest first (the default).
-ENV_IDS = ("MicroGravityLanding-Residual-v3", "MicroGravityLanding-Residual-v2", "MicroGravityLanding-Residual-v1")
+ENV_IDS = tuple(f"MicroGravityLanding-Residual-v{version}" for version in (4, 3, 2, 1))
 #: The base controllers run with a zero residual, by the row's name.
 BASE = gym.spec(ENV_IDS[0]).kwargs["base_controller"]  # the ids' own, under a zero residual
 BASES = {"pid": "pid", "feedforward": "feedforward", f"zero residual ({BASE})": BASE, "oracle": "oracle"}
@@ -68,11 +69,16 @@ def policy_actor(env_id: str, name: str) -> Callable[[np.ndarray], np.ndarray]:
     env = card["env_kwargs"]
     task = gym.spec(env_id).kwargs
     for key in ACTING_KEYS:
-        if env.get(key) != task.get(key):
+        if _plain(env.get(key)) != _plain(task.get(key)):
             raise ValueError(
                 f"policy {name!r} was trained with {key} {env.get(key)!r}, not {env_id}'s {task.get(key)!r}"
             )
     return lambda obs: policy.predict(obs, deterministic=True)[0].reshape(-1)
+
+
+def _plain(value: object) -> object:
+    """A card's value as the id's kwargs hold it (JSON keeps a tuple as a list)."""
+    return tuple(value) if isinstance(value, list) else value
 
 
 def returns(env_id: str, row: str, scenario: str, seeds: int) -> list[float]:

@@ -501,7 +501,7 @@ class _Run:
         from microg_env.rollout.batch import evaluate_batch
 
         seeds = range(VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes)
-        runs, failure_rate = evaluate_batch(_validation_settings(self.params.env_kwargs), controller, seeds)
+        runs, failure_rate = evaluate_batch(validation_settings(self.params.env_kwargs), controller, seeds)
         return runs, failure_rate, control_cost(runs)
 
     def base_cost(self) -> None:
@@ -650,13 +650,14 @@ class _NormalizedPolicy:
         return self.model.predict(observation, deterministic=deterministic)
 
 
-def _validation_settings(env_kwargs: dict[str, Any]) -> dict[str, Any]:
-    """The training environment's settings with the speed action (a controller composes the
-    residual itself) and the validation schedules; no id's registered defaults (a residual action)
-    come back."""
+def validation_settings(env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The training environment's settings with the speed action and every sensor shown (a
+    deployed policy's controller composes the residual and hides what the policy is not shown
+    itself) and the validation schedules; no id's registered defaults (a residual action) come back."""
     from microg_env.scenarios import VALIDATION_SAMPLER
 
-    kwargs = {k: v for k, v in env_kwargs.items() if k not in ("action_mode", "base_controller", "decision_period")}
+    acting = ("action_mode", "base_controller", "decision_period", "hidden_observations")
+    kwargs = {k: v for k, v in env_kwargs.items() if k not in acting}
     return kwargs | {"scenario_sampler": VALIDATION_SAMPLER}
 
 

@@ -642,13 +642,13 @@ def test_a_bad_policy_folder_is_named_before_it_runs(tmp_path, change, message):
 def test_the_log_states_the_base_controllers_cost_as_the_line_to_beat(ppo_run):
     """A residual run evaluates its base controller alone once (the same validation episodes and
     cost as every evaluation), logs it, and says at the end whether its best beat it."""
-    from microg_env.learning.train import VALIDATION_SEED, _validation_settings
+    from microg_env.learning.train import VALIDATION_SEED, validation_settings
     from microg_env.rollout.episode import evaluate
 
     folder = ppo_run[0]
     entry = yaml.safe_load((folder / "config.yml").read_text())[ENV_ID]
     base = make_controller(entry["env_kwargs"]["base_controller"], 1e-3)
-    settings = _validation_settings(entry["env_kwargs"])  # the single env's episodes: the batch's, one by one
+    settings = validation_settings(entry["env_kwargs"])  # the single env's episodes: the batch's, one by one
     runs, _ = evaluate(lambda: MicroGravityLandingEnv(**settings), base, [VALIDATION_SEED])
     state = json.loads((folder / "checkpoints" / "latest.json").read_text())
     assert state["base_cost"] == pytest.approx(control_cost(runs), rel=1e-12)
@@ -800,15 +800,18 @@ def test_a_zero_action_is_the_base_controller_on_every_version_of_the_residual_t
     assert v1_observations[:, OBSERVATION_INDEX["height"]].all()  # what v4 hides is there to hide
 
 
-def test_validation_on_the_residual_task_drives_a_speed_environment():
+@pytest.mark.parametrize("env_id", RESIDUAL_IDS)
+def test_validation_on_the_residual_task_drives_a_speed_environment(env_id):
     """The validation episodes are a speed environment whatever the id's registered defaults: a
-    residual default coming back would have the controller's speed commands read as x setpoints."""
+    residual default coming back would have the controller's speed commands read as x setpoints,
+    and a hidden entry would reach the base controller as 0 (the deployed controller hides what its
+    policy is not shown itself)."""
     import gymnasium as gym
 
-    from microg_env.learning.train import _validation_settings
+    from microg_env.learning.train import validation_settings
 
-    env = MicroGravityLandingEnv(**_validation_settings(gym.spec(RESIDUAL_ID).kwargs))
-    assert (env.core.action_mode, env.core.decision_period) == ("speed", 1)
+    env = MicroGravityLandingEnv(**validation_settings(gym.spec(env_id).kwargs))
+    assert (env.core.action_mode, env.core.decision_period, env.core.hidden_observations) == ("speed", 1, ())
     assert env.domain_randomization == microg_env.DomainRandomization.full()
 
 
