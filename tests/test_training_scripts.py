@@ -97,7 +97,8 @@ def test_probe_refuses_a_privileged_sac(recipe_probe, capsys):
 
 @pytest.mark.slow
 def test_probe_exports_a_sac_actor(recipe_probe, tmp_path):
-    """A SAC probe's export is its squashed deterministic actor, blind entries read by nobody."""
+    """A SAC probe's export is its squashed deterministic actor, blind entries read by nobody (300
+    steps, before SAC's first update at 5000: the actor is the initial one, which is what is exported)."""
     import gymnasium as gym
     import numpy as np
 

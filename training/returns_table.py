@@ -77,8 +77,8 @@ def policy_actor(env_id: str, name: str) -> Callable[[np.ndarray], np.ndarray]:
 
 
 def _plain(value: object) -> object:
-    """A card's value as the id's kwargs hold it (JSON keeps a tuple as a list)."""
-    return tuple(value) if isinstance(value, list) else value
+    """A setting as compared: a list of names (JSON keeps a tuple as a list) as the set of them."""
+    return frozenset(value) if isinstance(value, list | tuple) else value
 
 
 def returns(env_id: str, row: str, scenario: str, seeds: int) -> list[float]:
@@ -106,7 +106,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--policies", default="", help="learned policies trained on this task, comma-separated")
     args = parser.parse_args(argv)
     scenarios = args.scenarios.split(",")
-    rows = ["random", *BASES, *filter(None, args.policies.split(","))]
+    policies = list(filter(None, args.policies.split(",")))
+    for name in policies:  # a policy of another task is refused before any row runs
+        try:
+            policy_actor(args.env, name)
+        except ValueError as error:
+            parser.error(f"--policies: {error}")
+    rows = ["random", *BASES, *policies]
     print("| controller | " + " | ".join(f"`{s}`" for s in scenarios) + " |")
     print("|---" * (len(scenarios) + 1) + "|")
     for row in rows:

@@ -10,6 +10,7 @@ Run: ``python training/select_seed.py logs/sac/MicroGravityLanding-Residual-v4_1
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -19,11 +20,11 @@ from microg_env.analysis.metrics import RunMetrics
 from microg_env.analysis.summary import control_cost
 from microg_env.controllers.registry import load_policy, policy_card
 from microg_env.envs.settings import TaskSettings
-from microg_env.learning.train import validation_settings
+from microg_env.learning.train import VALIDATION_SEED, validation_settings
 from microg_env.rollout.batch import evaluate_batch
 
-#: The validation episodes' seeds.
-SEEDS = tuple(range(500, 540))
+#: The validation episodes' seeds: training's own 5 validation seeds and 35 more.
+SEEDS = tuple(range(VALIDATION_SEED, VALIDATION_SEED + 40))
 
 
 def scores(runs: list[RunMetrics]) -> dict[str, float]:
@@ -38,33 +39,37 @@ def scores(runs: list[RunMetrics]) -> dict[str, float]:
 
 
 def main(argv: list[str]) -> int:
-    if not argv:
+    runs = list(dict.fromkeys(argv))
+    if not runs:
         sys.exit("usage: python training/select_seed.py RUN_FOLDER [RUN_FOLDER ...]")
-    cards = [policy_card(Path(run) / "policy") for run in argv]
-    settings = validation_settings(cards[0]["env_kwargs"])
-    for run, card in zip(argv, cards, strict=True):
-        if validation_settings(card["env_kwargs"]) != settings:
-            sys.exit(f"{run}: trained on another task than {argv[0]}; compare runs of one task")
+    try:
+        cards = [policy_card(Path(run) / "policy") for run in runs]
+    except ValueError as error:
+        sys.exit(f"select_seed: {error}")
+    task = cards[0]["env_kwargs"]
+    if task.get("action_mode") != "residual":
+        sys.exit(f"{runs[0]}: not a residual policy; the seed selection compares residuals on one base controller")
+    for run, card in zip(runs, cards, strict=True):
+        if json.dumps(card["env_kwargs"], sort_keys=True) != json.dumps(task, sort_keys=True):
+            sys.exit(f"{run}: trained on another task than {runs[0]}; compare runs of one task")
+    settings = validation_settings(task)
     period = TaskSettings(**settings).control_period_s
-    rows = {f"zero residual ({cards[0]['env_kwargs']['base_controller']})": cards[0]["env_kwargs"]["base_controller"]}
-    rows |= {run: load_policy(Path(run) / "policy", period) for run in argv}
-    print(
-        "| run | seed | control cost | \\|compensation error\\| [%] | worst x, collision [um] | x in free fall [um] |"
-    )
+    rows = {f"zero residual ({task['base_controller']})": (task["base_controller"], "")}
+    for run, card in zip(runs, cards, strict=True):
+        rows[run] = (load_policy(Path(run) / "policy", period), card.get("seed", ""))
+    print("| run | seed | cost | \\|compensation error\\| [%] | worst x, collision [um] | x in free fall [um] |")
     print("|---|---|---|---|---|---|")
     costs = {}
-    for (name, controller), card in zip(rows.items(), [None, *cards], strict=True):
-        runs, _ = evaluate_batch(settings, controller, SEEDS)
-        row = scores(runs)
+    for name, (controller, seed) in rows.items():
+        runs_metrics, _ = evaluate_batch(settings, controller, SEEDS)
+        row = scores(runs_metrics)
         costs[name] = row["cost"]
-        seed = "" if card is None else card["seed"]
         print(
             f"| {name} | {seed} | {row['cost']:.4f} | {row['compensation_error_pct']:.4f} | "
             f"{row['worst_collision_um']:.3f} | {row['free_fall_um']:.3f} |",
             flush=True,
         )
-    best = min(argv, key=costs.__getitem__)
-    print(f"lowest control cost: {best}")
+    print(f"lowest control cost: {min(runs, key=costs.__getitem__)}")
     return 0
 
 

@@ -176,7 +176,7 @@ class PolicyController(VectorController):
         residual_highpass_hz: float = 0.0,
         control_period_s: float = CONTROL_PERIOD_S,
         residual_highpass_order: int = 1,
-        hidden_observations: tuple[str, ...] = (),
+        hidden_observations: tuple[str, ...] | list[str] = (),
     ) -> None:
         super().__init__(*(() if base is None else (base,)))
         self.policy = policy

@@ -183,5 +183,5 @@ def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyContro
         residual_highpass_hz=float(env_kwargs.get("residual_highpass_hz", 0.0)),
         control_period_s=period,
         residual_highpass_order=env_kwargs.get("residual_highpass_order", 1),
-        hidden_observations=tuple(env_kwargs.get("hidden_observations", ())),
+        hidden_observations=env_kwargs.get("hidden_observations", ()),
     )

@@ -399,12 +399,13 @@ class LandingCore:
     def can_run_pid(self, controller: Any) -> bool:
         """Whether :meth:`run_pid` can drive this core's rig with ``controller``: a :class:`PID`
         itself (not a subclass, which may act otherwise), on one rig stepping its own ``MjData``,
-        its actions the drive's speeds, one period per step."""
+        its actions the drive's speeds, one period per step, every observation entry shown."""
         return (
             type(controller) is PID
             and isinstance(self.physics, ModelPhysics)
             and self.base is None
             and self.decision_period == 1
+            and not self._hidden.size
             and mj_step is not None
         )
 

@@ -179,3 +179,21 @@ def test_kernels_find_mujocos_step_beside_the_bindings():
     """Without it the compiled PID loop silently falls back to the environment's steps."""
     assert mj_step is not None
     assert LandingCore(1).can_run_pid(make_controller("pid", 1e-3))
+
+
+def test_every_runner_shows_a_controller_what_the_environment_shows():
+    """With ``hidden_observations`` the PID reads 0 for x whichever loop runs it: the compiled loop
+    (which reads the whole observation, so it steps aside), the environment's own steps and a batch
+    (these gave x 39 um apart in 0.3 s before)."""
+    from microg_env.rollout.batch import EpisodeSpec, run_batch
+
+    settings = {"condition": 3, "hidden_observations": ("x",)}
+    pid = make_controller("pid", 1e-3)
+    compiled = run_episode(MicroGravityLandingEnv(**settings), pid, 5, duration_s=0.3)
+    stepped = run_episode(MicroGravityLandingEnv(**settings), pid, 5, duration_s=0.3, on_step=lambda env, info: None)
+    (batched, _, error), *_ = run_batch([EpisodeSpec("pid", None, 5)], settings | {"scenario": None}, 1)
+    assert error is None
+    shown = run_episode(MicroGravityLandingEnv(condition=3), pid, 5, duration_s=0.3)
+    np.testing.assert_array_equal(compiled.x_m, stepped.x_m)
+    np.testing.assert_array_equal(compiled.x_m, batched.x_m[: len(compiled)])
+    assert np.abs(compiled.x_m - shown.x_m).max() > 1e-6  # blind to x, the PID lets x go
