@@ -153,3 +153,16 @@ def test_select_seed_scores_runs_on_the_40_validation_episodes(monkeypatch, tmp_
     assert out.strip().endswith(f"lowest control cost: {runs[0]}")
     with pytest.raises(SystemExit, match="trained on another task"):
         select_seed.main([str(run) for run in runs])
+
+
+def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):
+    """The v4 policy (its hidden entries a JSON list) is v4's; on v3 it is refused before any row runs."""
+    monkeypatch.syspath_prepend(str(TRAINING))
+    returns_table = importlib.import_module("returns_table")
+    returns_table.policy_actor("MicroGravityLanding-Residual-v4", "residual-sac-adaptive")
+    with pytest.raises(SystemExit) as exit_:
+        returns_table.main(["--env", "MicroGravityLanding-Residual-v3", "--policies", "residual-sac-adaptive"])
+    assert exit_.value.code == 2
+    captured = capsys.readouterr()
+    assert "--policies: policy 'residual-sac-adaptive' was trained with hidden_observations" in captured.err
+    assert captured.out == ""

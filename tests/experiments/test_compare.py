@@ -12,6 +12,7 @@ from microg_env.cli import main
 from microg_env.controllers.registry import load_policy, policy_card, shipped_policy_folder
 from microg_env.experiments.comparison import QUANTITIES, TEST_SEED, compare
 from microg_env.experiments.comparison_report import COMPARISON_FILES, render_markdown, write
+from microg_env.interface import OBSERVATION_INDEX
 from microg_env.learning.hyperparams import load as load_hyperparams
 
 
@@ -188,6 +189,29 @@ def test_the_policy_shipped_for_the_registered_task_records_its_training():
     assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
     finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
     assert "the base controller alone (0.2007)" in finished  # the line to beat, in the log
+
+
+def test_the_sac_policy_shipped_for_v4_records_its_training():
+    """residual-sac-adaptive: the best of five seeds of sac.yml's recipe on
+    MicroGravityLanding-Residual-v4 by the control cost on 40 validation episodes
+    (training/select_seed.py; docs/controllers.md gives all five), deployed blind to the absolute
+    positions, trained within 30 minutes."""
+    folder = shipped_policy_folder("residual-sac-adaptive")
+    card = policy_card(folder)
+    assert card["command"].startswith("microg train --algo sac --env MicroGravityLanding-Residual-v4 --seed 3 ")
+    assert card["env_id"] == "MicroGravityLanding-Residual-v4"
+    recipe = load_hyperparams("sac", "MicroGravityLanding-Residual-v4").as_config()
+    assert card["hyperparams"] == json.loads(json.dumps(recipe))  # JSON keeps the hidden entries as a list
+    assert card["env_kwargs"]["hidden_observations"] == ["support_position", "height"]
+    controller = load_policy(folder, 1e-3)
+    assert controller._hidden == [OBSERVATION_INDEX["support_position"], OBSERVATION_INDEX["height"]]
+    assert controller.policy.squash  # SAC's tanh
+    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
+    assert totals["timesteps"] >= card["target_timesteps"] == 300_000
+    assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
+    assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
+    finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
+    assert "it beats the base controller alone (0.2007)" in finished
 
 
 @pytest.mark.slow
