@@ -539,11 +539,13 @@ class LandingCore:
             self.reference_weight_n, self.reward_x,
         )  # fmt: skip
 
-    def shown(self) -> np.ndarray:
-        """A copy of every rig's observation as the agent is shown it: its ``hidden_observations``
-        read 0 (the base controller of a residual reads :attr:`observation`, all of it)."""
-        observations = self.observation.copy()
-        observations[:, self._hidden] = 0.0
+    def shown(self, ids: np.ndarray | None = None) -> np.ndarray:
+        """A copy of the observations of rigs ``ids`` (every rig by default) as the agent is shown
+        them: its ``hidden_observations`` read 0 (the base controller of a residual reads
+        :attr:`observation`, all of it)."""
+        observations = self.observation.copy() if ids is None else self.observation[ids]
+        if self._hidden.size:
+            observations[:, self._hidden] = 0.0
         return observations
 
     def info(self, ids: np.ndarray, codes: np.ndarray) -> dict[str, np.ndarray]:

@@ -153,7 +153,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
                 final_obs[i] = observations[i].copy()
             final_info = self._info(done, codes[done])
             core.reset(done, self._rngs)
-            observations[done] = core.shown()[done]
+            observations[done] = core.shown(done)
             after = core.info(done, np.zeros(done.size, dtype=np.int64))
             for key in INFO_KEYS:
                 info[key][done] = after[key]

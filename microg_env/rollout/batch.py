@@ -136,14 +136,13 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
     actions = np.zeros(n)
     reported = 0.0
     while running.size:
-        observation = core.shown()  # as the environment shows it to whatever acts on it
         for name, controller, rigs in groups:
             active = is_running[rigs]
             if not active.any():
                 continue
             live = rigs[active]
             try:
-                actions[live] = controller(observation[live], ids=np.flatnonzero(active))[:, 0]
+                actions[live] = controller(core.shown(live), ids=np.flatnonzero(active))[:, 0]  # as the env shows it
             except Exception as error:  # this controller's rigs stop here; the others run on
                 _stop(live, f"controller {name!r} raised {type(error).__name__}: {error}", errors, is_running)
                 continue
