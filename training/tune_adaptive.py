@@ -1,18 +1,26 @@
-"""Choose the adaptive feed-forward's LMS step; the result goes into microg_env/config/controllers.toml.
+"""Choose the adaptive feed-forward's LMS step, or its dither; the result goes into
+microg_env/config/controllers.toml.
 
-Each candidate step drives conditions 1-3 on validation seeds 500-502 (never a test seed) with plants
+Each candidate drives conditions 1-3 on validation seeds 500-502 (never a test seed) with plants
 and drives drawn (``DomainRandomization.full()``), and is scored by the PID tuner's cost J = mean
-|compensation error| [%] + collision excursion [um] / 10 (training/tune_pid.py). Prints J of each.
+|compensation error| [%] + collision excursion [um] / 10 (training/tune_pid.py). Prints J of each,
+and beside it what J does not weigh: x in free fall and x's change over the first 5 ms of contact.
 
-Run: ``python training/tune_adaptive.py [--steps 0.001,0.003,0.01,0.03] [--seeds 3]``.
+Run: ``python training/tune_adaptive.py [--steps 0.001,0.003,0.01,0.03] [--seeds 3]`` (the LMS
+step of ``adaptive``), or ``python training/tune_adaptive.py --dither 0,30,60,150,300 --periods
+4,10,20`` (amplitudes in nm and periods in ms of ``adaptive-dither``'s square wave, every pair).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 
+from microg_env.analysis.metrics import COMPARED_WINDOW
 from microg_env.analysis.summary import finite_mean
+from microg_env.controllers.base import Controller
+from microg_env.controllers.feedforward import DitheredAdaptiveFeedforward, DitherSettings
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
@@ -20,28 +28,63 @@ from microg_env.learning.train import VALIDATION_SEED
 from microg_env.rollout.episode import run_with_metrics
 
 
-def cost(step: float, seeds: int, duration_s: float | None) -> float:
-    """J of the adaptive feed-forward with LMS step ``step``."""
-    values = []
+def scores(make: Callable[[float], Controller], seeds: int, duration_s: float | None) -> tuple[float, float, float]:
+    """J of the controllers ``make(control_period_s)`` builds, and their mean x in free fall and
+    change of x over the first 5 ms of contact (um)."""
+    costs, free_fall, first_5_ms = [], [], []
     for number in (1, 2, 3):
         env = MicroGravityLandingEnv(condition=number, domain_randomization=DomainRandomization.full())
         for seed in range(VALIDATION_SEED, VALIDATION_SEED + seeds):
-            controller = make_controller("adaptive", env.control_period_s)
-            controller.adaptive_constants = (step, *controller.adaptive_constants[1:])
-            metrics = run_with_metrics(env, controller, seed, duration_s)[2]
+            metrics = run_with_metrics(env, make(env.control_period_s), seed, duration_s)[2]
             error = finite_mean(map(abs, metrics.compensation_error_pct))
-            values.append(error + metrics.flexible_unit_excursion_collision_m * 1e6 / 10)
-    return finite_mean(values)
+            costs.append(error + metrics.flexible_unit_excursion_collision_m * 1e6 / 10)
+            free_fall.append(metrics.flexible_unit_excursion_free_fall_m * 1e6)
+            first_5_ms.append(metrics.x_change_after_touchdown_m[COMPARED_WINDOW] * 1e6)
+        env.close()
+    return finite_mean(costs), finite_mean(free_fall), finite_mean(first_5_ms)
+
+
+def with_step(step: float) -> Callable[[float], Controller]:
+    """``adaptive`` with LMS step ``step``."""
+
+    def make(control_period_s: float) -> Controller:
+        controller = make_controller("adaptive", control_period_s)
+        controller.adaptive_constants = (step, *controller.adaptive_constants[1:])
+        return controller
+
+    return make
+
+
+def with_dither(amplitude_m: float, period_s: float) -> Callable[[float], Controller]:
+    """``adaptive-dither`` with this square wave."""
+    return lambda control_period_s: DitheredAdaptiveFeedforward(
+        control_period_s, dither=DitherSettings(amplitude_m, period_s)
+    )
+
+
+def floats(text: str) -> list[float]:
+    return [float(value) for value in text.split(",")]
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", default="0.001,0.003,0.01,0.03", help="candidate LMS steps, comma-separated")
+    parser.add_argument("--dither", default=None, help="tune the dither instead: amplitudes, nm, comma-separated")
+    parser.add_argument("--periods", default="10", help="with --dither: the square wave's periods, ms, comma-separated")
     parser.add_argument("--seeds", type=int, default=3, help="validation seeds per condition (from 500)")
     parser.add_argument("--duration", type=float, default=None, help="cap on each run's simulated time, s")
     args = parser.parse_args(argv)
-    for step in (float(text) for text in args.steps.split(",")):
-        print(f"step {step:g}: J = {cost(step, args.seeds, args.duration):.4f}")
+    if args.dither is None:
+        candidates = {f"step {step:g}": with_step(step) for step in floats(args.steps)}
+    else:
+        candidates = {
+            f"dither {amplitude:g} nm, {period:g} ms": with_dither(amplitude * 1e-9, period * 1e-3)
+            for period in floats(args.periods)
+            for amplitude in floats(args.dither)
+        }
+    for name, make in candidates.items():
+        cost, free_fall, first_5_ms = scores(make, args.seeds, args.duration)
+        print(f"{name}: J = {cost:.4f}  (x in free fall {free_fall:.3f} um, 5 ms from touchdown {first_5_ms:.3f} um)")
     return 0
 
 

@@ -289,6 +289,58 @@ class AdaptiveFeedforward(Feedforward):
         return actions
 
 
+@dataclass(frozen=True)
+class DitherSettings:
+    """The dither's settings (config/controllers.toml, ``[adaptive-dither]``)."""
+
+    amplitude_m: float  # half the square wave's peak-to-peak, added to the x setpoint
+    period_s: float  # one full cycle
+
+    @classmethod
+    def load(cls) -> DitherSettings:
+        entry = controller_config("adaptive-dither")
+        return cls(float(entry["dither_amplitude_m"]), float(entry["dither_period_s"]))
+
+
+class DitheredAdaptiveFeedforward(AdaptiveFeedforward):
+    """The adaptive feed-forward with a square-wave dither on its x setpoint: +-``amplitude_m``,
+    switching every half ``period_s`` (rounded to whole control periods, at least one), from +
+    at each episode's start.
+
+    Dither is the classical remedy for friction at low speed (Armstrong-Helouvry, Dupont and
+    Canudas de Wit, Automatica 30(7), 1994, Section 5.3): the support descends at a few mm/s, where
+    the LuGre friction of the screw and the QZS guide sticks and slips, and that leaves a bias in the
+    force on the lander, the compensation error of Eq. (17)'s descent; a small fast oscillation
+    keeps the contacts sliding, so the friction averages out. It reads what ``adaptive`` reads. A
+    setpoint from a residual (:class:`~microg_env.controllers.policy.PolicyController`) is held as
+    for ``adaptive``, the dither added to it.
+    """
+
+    STATE: ClassVar[dict[str, float]] = {**AdaptiveFeedforward.STATE, "_dither_periods": 0.0}
+
+    def __init__(
+        self,
+        control_period_s: float,
+        params: RigParams | None = None,
+        gains: PIDGains | None = None,
+        dither: DitherSettings | None = None,
+    ) -> None:
+        super().__init__(control_period_s, params, gains=gains)
+        self.dither = DitherSettings.load() if dither is None else dither
+        #: Control periods between the square wave's switches.
+        self.half_period = max(1, round(self.dither.period_s / 2 / control_period_s))
+
+    def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        held = self.setpoint_m[ids]
+        phase = (self._dither_periods[ids] // self.half_period) % 2
+        self.setpoint_m[ids] = held + np.where(phase == 0, self.dither.amplitude_m, -self.dither.amplitude_m)
+        self._dither_periods[ids] += 1
+        try:
+            return super().act(rows, ids)
+        finally:
+            self.setpoint_m[ids] = held
+
+
 @jit
 def adapt_cogging(rows, ids, scales, plant, reference, pending, slow, gain, min_rate, corner, smoothing, torque_filter):
     """One step of the cogging estimate of rigs ``ids`` (rows 9 and 11 of ``plant``: amplitude and

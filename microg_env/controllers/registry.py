@@ -18,7 +18,7 @@ from typing import Any
 
 from microg_env import validate
 from microg_env.controllers.base import Controller
-from microg_env.controllers.feedforward import AdaptiveFeedforward, Feedforward, Oracle
+from microg_env.controllers.feedforward import AdaptiveFeedforward, DitheredAdaptiveFeedforward, Feedforward, Oracle
 from microg_env.controllers.pid import PID, load_gains
 from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy, PolicyController
 from microg_env.interface import (
@@ -33,11 +33,16 @@ from microg_env.validate import FieldError
 
 #: The classical baselines: the paper's PID, its derivative-on-measurement variant, the PID with
 #: the nominal model's feed-forward, that feed-forward learning the motor's cogging as it runs
-#: (``adaptive``), and the bound: the feed-forward told the episode's true plant (``oracle``, not
-#: deployable).
-BASELINES = ("pid", "pid-dom", "feedforward", "adaptive", "oracle")
+#: (``adaptive``), that with a dither on its setpoint against the friction (``adaptive-dither``),
+#: and the bound: the feed-forward told the episode's true plant (``oracle``, not deployable).
+BASELINES = ("pid", "pid-dom", "feedforward", "adaptive", "adaptive-dither", "oracle")
 #: The baselines built on the feed-forward (their feedback loop is ``pid``'s).
-FEEDFORWARDS = {"feedforward": Feedforward, "adaptive": AdaptiveFeedforward, "oracle": Oracle}
+FEEDFORWARDS = {
+    "feedforward": Feedforward,
+    "adaptive": AdaptiveFeedforward,
+    "adaptive-dither": DitheredAdaptiveFeedforward,
+    "oracle": Oracle,
+}
 #: Most bytes a policy card may hold.
 MAX_CARD_BYTES = 2**20
 

@@ -1,17 +1,21 @@
-"""The baselines: the PID law and its 1e-4 g level, the feed-forward, its adaptive variant, the oracle."""
+"""The baselines: the PID law and its 1e-4 g level, the feed-forward, its adaptive variant and its
+dither, the oracle."""
 
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from microg_env.controllers import PID, PIDGains, PolicyController, load_gains, make_controller
+from microg_env.controllers import BASELINES, PID, PIDGains, PolicyController, load_gains, make_controller
 from microg_env.controllers.base import tell_plants
+from microg_env.controllers.feedforward import DitheredAdaptiveFeedforward, DitherSettings
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
 from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES
 from microg_env.params import RigParams
 from microg_env.rollout.episode import run_episode, run_with_metrics
+from microg_env.rollout.runner import run
+from microg_env.rollout.spec import RunSpec
 
 GAINS = PIDGains(kp_per_s=100.0, ki_per_s2=5000.0, kd=2.0, derivative_filter_s=0.0, integral_limit_m_s=0.5)
 PERIOD = 1e-3
@@ -134,7 +138,7 @@ class _Sealed(dict):
     get = __getitem__
 
 
-@pytest.mark.parametrize("name", ["pid", "pid-dom", "feedforward", "adaptive", "oracle"])
+@pytest.mark.parametrize("name", BASELINES)
 def test_baselines_read_only_the_observation(name):
     env = MicroGravityLandingEnv(condition=2)
     controller = make_controller(name, env.control_period_s)
@@ -211,6 +215,46 @@ def test_the_adaptive_feedforward_learns_a_cogging_it_was_not_told():
             assert ours.flexible_unit_excursion_collision_m <= theirs.flexible_unit_excursion_collision_m * 1.05
     adaptive.reset()
     np.testing.assert_array_equal(adaptive._plant[0], adaptive.nominal)  # a new episode starts from the nominal motor
+
+
+def test_the_dither_is_a_square_wave_on_the_setpoint_a_residual_holds():
+    """Each period the dithered controller acts as ``adaptive`` does with its setpoint moved by
+    +A for half the dither's period, then -A (here A = 50 nm, 4 ms: two periods each), bit for bit,
+    and the setpoint a residual wrote is still there after every call; a reset starts at +A again."""
+    env = MicroGravityLandingEnv(condition=2)
+    dithered = DitheredAdaptiveFeedforward(PERIOD, dither=DitherSettings(50e-9, 4e-3))
+    plain = make_controller("adaptive", PERIOD)
+    held = 1e-7  # a residual's setpoint
+    for episode in range(2):
+        observation, info = env.reset(seed=episode)
+        for controller in (dithered, plain):
+            controller.reset()
+        dithered.setpoint_m[0] = held
+        for k in range(12):
+            plain.setpoint_m[0] = held + (50e-9 if (k // 2) % 2 == 0 else -50e-9)
+            action = dithered(observation, info)
+            np.testing.assert_array_equal(action, plain(observation, info))
+            assert dithered.setpoint_m[0] == held
+            observation, _, _, _, info = env.step(action)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("friction", [True, False])
+def test_the_dither_takes_out_the_compensation_error_the_friction_leaves(friction):
+    """The compensation error ``adaptive`` leaves in a slow descent is the LuGre friction's: with
+    the screw's and the guide's friction (held-out `light-long`, plants drawn 1.5 times wider,
+    seeds 1000-1001) the dither cuts it at least fourfold (measured: 20 and 100 times); without
+    friction neither leaves 0.001 % (measured: 0.00015-0.00023 %): there is nothing for the dither to take out, and it adds none."""
+    spec = {"randomize": "wider", "imperfections": {} if friction else {"friction": False}}
+    for seed in (1000, 1001):
+        errors = {
+            name: np.mean(np.abs(run(RunSpec("light-long", name, seed, **spec)).metrics.compensation_error_pct))
+            for name in ("adaptive", "adaptive-dither")
+        }
+        if friction:
+            assert errors["adaptive-dither"] * 4 < errors["adaptive"], (seed, errors)
+        else:
+            assert max(errors.values()) < 1e-3, (seed, errors)
 
 
 @pytest.mark.parametrize("period", [0.0, -1e-3, float("nan"), 1.0])
