@@ -1,5 +1,6 @@
-"""The analysis scripts behind the adaptive baseline's settings, the partial oracles of docs/controllers.md, its
-returns table, the recipe probes and the seed selection run, and the probes' asymmetric critic and export hold."""
+"""The analysis scripts behind the adaptive baseline's settings and its dither, the partial oracles of
+docs/controllers.md, the dither probe, its returns table, the recipe probes and the seed selection
+run, and the probes' asymmetric critic and export hold."""
 
 from __future__ import annotations
 
@@ -15,6 +16,8 @@ TRAINING = Path(__file__).resolve().parents[1] / "training"
     ("name", "args", "expected"),
     [
         ("tune_adaptive", ["--steps", "0.003", "--seeds", "1", "--duration", "0.3"], "step 0.003: J = "),
+        ("tune_adaptive", ["--dither", "60", "--seeds", "1", "--duration", "0.3"], "dither 60 nm, 10 ms: J = "),
+        ("dither_probe", ["--amplitudes", "0.05,sac", "--seeds", "1", "--workers", "1"], "| sac | "),
         ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
         ("returns_table", ["--seeds", "1", "--scenarios", "training"], "| zero residual (adaptive) | "),
         (

@@ -40,7 +40,13 @@ from microg_env.scenarios import comparison_scenarios
 ENV_IDS = tuple(f"MicroGravityLanding-Residual-v{version}" for version in (4, 3, 2, 1))
 #: The base controllers run with a zero residual, by the row's name.
 BASE = gym.spec(ENV_IDS[0]).kwargs["base_controller"]  # the ids' own, under a zero residual
-BASES = {"pid": "pid", "feedforward": "feedforward", f"zero residual ({BASE})": BASE, "oracle": "oracle"}
+BASES = {
+    "pid": "pid",
+    "feedforward": "feedforward",
+    f"zero residual ({BASE})": BASE,
+    "adaptive-dither": "adaptive-dither",
+    "oracle": "oracle",
+}
 SCENARIOS = ("training", *comparison_scenarios())
 
 
