@@ -244,7 +244,8 @@ def test_the_dither_takes_out_the_compensation_error_the_friction_leaves(frictio
     """The compensation error ``adaptive`` leaves in a slow descent is the LuGre friction's: with
     the screw's and the guide's friction (held-out `light-long`, plants drawn 1.5 times wider,
     seeds 1000-1001) the dither cuts it at least fourfold (measured: 20 and 100 times); without
-    friction neither leaves 0.001 % (measured: 0.00015-0.00023 %): there is nothing for the dither to take out, and it adds none."""
+    friction neither leaves 0.001 % (measured: 0.00015-0.00023 %): there is nothing for the dither
+    to take out, and it adds none."""
     spec = {"randomize": "wider", "imperfections": {} if friction else {"friction": False}}
     for seed in (1000, 1001):
         errors = {
