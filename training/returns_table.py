@@ -11,7 +11,7 @@ return is the episode's undiscounted sum of rewards; the table gives mean ± std
 1000, the comparison's test seeds. ``training`` draws the id's own schedules; the other scenarios
 are the comparison's, outside the training draws. The id's ``reward_threshold`` is the zero
 residual's mean return on ``training`` over 100 seeds (``--seeds 100 --scenarios training``),
-rounded down: a policy above it beats the best deployable classical controller on the task it was
+rounded down: a policy above it earns more than its base controller alone on the task it was
 trained on. Returns grow with an episode's length, so compare controllers on the same seeds.
 
 Run: ``python training/returns_table.py [--env ID] [--seeds 5] [--scenarios training,condition-1] [--policies NAME]``.

@@ -3,7 +3,7 @@ and seeds, with the classical controllers it should beat.
 
 The task is the registered ``MicroGravityLanding-Residual-v3``: a policy adds a setpoint within
 ±3 µm, high-passed at 2 Hz by two stages, to ``adaptive``, the best deployable classical
-controller, on plants and drives drawn at every reset. Training and the comparison use the
+controller in x, on plants and drives drawn at every reset. Training and the comparison use the
 package's own recipe and tools (``microg train`` and ``microg compare`` run the same code).
 With the default 100 000 steps this takes a few minutes on two CPU cores and is far too short to
 learn anything useful: the point is the workflow and an honest yardstick, not a result (the
