@@ -68,7 +68,7 @@ def _register(env_id: str, kwargs: dict | None = None, reward_threshold: float |
 # No max_episode_steps: the environment truncates itself at its scenario's duration, whatever the
 # control period (a step count fixed here would cut a 100 us episode off at 3 s).
 _register("MicroGravityLanding-v1")
-# The learning task: a +-1 um residual x setpoint on the best deployable classical controller (the
+# The learning task: a +-1 um residual x setpoint on the best deployable classical controller in x (the
 # adaptive feed-forward), held 5 control periods, on drawn training schedules and drawn plants and
 # drives, so a zero action is the line to beat. reward_threshold: that zero residual's mean return
 # on these draws (training/returns_table.py).

@@ -29,6 +29,7 @@ from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.experiments.comparison import QUANTITIES, TEST_SEED
 from microg_env.imperfections import IMPERFECTION_NAMES
 from microg_env.interface import OBSERVATION_INDEX
+from microg_env.params import PHYSICS_STEP_S
 from microg_env.rollout.episode import run_with_metrics
 from microg_env.rollout.spec import RunSpec
 from microg_env.scenarios import HELD_OUT
@@ -74,26 +75,46 @@ def episode(case: tuple[str, str, int], sensors: str, off: tuple[str, ...], step
     return {name: float(QUANTITIES[name].of(metrics)) for name in SHOWN}
 
 
+def at_least_one(text: str) -> int:
+    """A whole number >= 1 (argparse type)."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def amplitude_or_sac(text: str) -> str:
+    """``sac``, or a share of the residual in (0, 1] (argparse type; 0 is the reference, always run)."""
+    if text == "sac":
+        return text
+    try:
+        share = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither a number nor sac") from None
+    if not 0.0 < share <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: a share of the residual must be in (0, 1]")
+    return repr(share)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--amplitudes", default="0.02,0.05,0.1,0.3,sac", help="shares of the residual, or sac")
-    parser.add_argument("--seeds", type=int, default=13, help="seeds per schedule, from 1000")
+    parser.add_argument(
+        "--amplitudes",
+        type=lambda text: [amplitude_or_sac(part) for part in text.split(",")],
+        default="0.02,0.05,0.1,0.3,sac",
+        help="shares of the residual in (0, 1], or sac, comma-separated",
+    )
+    parser.add_argument("--seeds", type=at_least_one, default=13, help="seeds per schedule, from 1000")
     parser.add_argument("--sensors", choices=("extended", "paper"), default="extended")
     parser.add_argument("--off", default="", help="imperfections switched off, comma-separated")
-    parser.add_argument("--physics-step-us", type=float, default=100.0)
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--physics-step-us", type=float, default=PHYSICS_STEP_S * 1e6)
+    parser.add_argument("--workers", type=at_least_one, default=2)
     args = parser.parse_args(argv)
     off = tuple(name for name in args.off.split(",") if name)
     for name in off:
         if name not in IMPERFECTION_NAMES:
             parser.error(f"--off: unknown imperfection {name!r}; known: {', '.join(IMPERFECTION_NAMES)}")
-    candidates = ["0", *(text for text in args.amplitudes.split(",") if text != "0")]
-    for text in candidates:
-        if text != "sac":
-            try:
-                float(text)
-            except ValueError:
-                parser.error(f"--amplitudes: {text!r} is neither a number nor sac")
+    candidates = ["0", *dict.fromkeys(args.amplitudes)]
     cases = [(c, s, seed) for c in candidates for s in HELD_OUT for seed in range(TEST_SEED, TEST_SEED + args.seeds)]
     run = partial(episode, sensors=args.sensors, off=off, step_us=args.physics_step_us)
     with Pool(args.workers) as pool:

@@ -57,9 +57,11 @@ def with_step(step: float) -> Callable[[float], Controller]:
 
 def with_dither(amplitude_m: float, period_s: float) -> Callable[[float], Controller]:
     """``adaptive-dither`` with this square wave."""
-    return lambda control_period_s: DitheredAdaptiveFeedforward(
-        control_period_s, dither=DitherSettings(amplitude_m, period_s)
-    )
+
+    def make(control_period_s: float) -> Controller:
+        return DitheredAdaptiveFeedforward(control_period_s, dither=DitherSettings(amplitude_m, period_s))
+
+    return make
 
 
 def floats(text: str) -> list[float]:

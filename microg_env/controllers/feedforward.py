@@ -34,6 +34,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from microg_env import validate
 from microg_env.compiled import jit
 from microg_env.controllers.base import VectorController
 from microg_env.controllers.pid import PID, X_RATE, PIDGains, X, controller_config, load_gains, pid_command
@@ -296,16 +297,21 @@ class DitherSettings:
     amplitude_m: float  # half the square wave's peak-to-peak, added to the x setpoint
     period_s: float  # one full cycle
 
+    def __post_init__(self) -> None:
+        validate.non_negative("amplitude_m", self.amplitude_m, "m")
+        validate.positive("period_s", self.period_s, "s")
+
     @classmethod
     def load(cls) -> DitherSettings:
         entry = controller_config("adaptive-dither")
-        return cls(float(entry["dither_amplitude_m"]), float(entry["dither_period_s"]))
+        return cls(*(float(entry[f.name]) for f in fields(cls)))
 
 
 class DitheredAdaptiveFeedforward(AdaptiveFeedforward):
     """The adaptive feed-forward with a square-wave dither on its x setpoint: +-``amplitude_m``,
-    switching every half ``period_s`` (rounded to whole control periods, at least one), from +
-    at each episode's start.
+    switching every half ``period_s`` rounded to whole control periods (so at a 2 ms control
+    period a 10 ms dither runs at 12 ms), from + at each episode's start; a period shorter than
+    two control periods is refused.
 
     Dither is the classical remedy for friction at low speed (Armstrong-Helouvry, Dupont and
     Canudas de Wit, Automatica 30(7), 1994, Section 5.3): the support descends at a few mm/s, where
@@ -313,7 +319,8 @@ class DitheredAdaptiveFeedforward(AdaptiveFeedforward):
     force on the lander, the compensation error of Eq. (17)'s descent; a small fast oscillation
     keeps the contacts sliding, so the friction averages out. It reads what ``adaptive`` reads. A
     setpoint from a residual (:class:`~microg_env.controllers.policy.PolicyController`) is held as
-    for ``adaptive``, the dither added to it.
+    for ``adaptive``, the dither added to it; ``setpoint_m`` (and the environment's
+    ``info["setpoint_m"]``) is that held setpoint, without the dither.
     """
 
     STATE: ClassVar[dict[str, float]] = {**AdaptiveFeedforward.STATE, "_dither_periods": 0.0}
@@ -327,18 +334,24 @@ class DitheredAdaptiveFeedforward(AdaptiveFeedforward):
     ) -> None:
         super().__init__(control_period_s, params, gains=gains)
         self.dither = DitherSettings.load() if dither is None else dither
+        if self.dither.period_s < 2 * control_period_s:
+            raise ValueError(
+                f"dither period_s {self.dither.period_s!r}: shorter than two control periods "
+                f"({2 * control_period_s:g} s), a square wave cannot switch that fast"
+            )
         #: Control periods between the square wave's switches.
-        self.half_period = max(1, round(self.dither.period_s / 2 / control_period_s))
+        self.half_period = math.floor(self.dither.period_s / 2 / control_period_s + 0.5)
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         held = self.setpoint_m[ids]
         phase = (self._dither_periods[ids] // self.half_period) % 2
         self.setpoint_m[ids] = held + np.where(phase == 0, self.dither.amplitude_m, -self.dither.amplitude_m)
-        self._dither_periods[ids] += 1
         try:
-            return super().act(rows, ids)
+            actions = super().act(rows, ids)
         finally:
             self.setpoint_m[ids] = held
+        self._dither_periods[ids] += 1
+        return actions
 
 
 @jit

@@ -220,7 +220,8 @@ def test_the_adaptive_feedforward_learns_a_cogging_it_was_not_told():
 def test_the_dither_is_a_square_wave_on_the_setpoint_a_residual_holds():
     """Each period the dithered controller acts as ``adaptive`` does with its setpoint moved by
     +A for half the dither's period, then -A (here A = 50 nm, 4 ms: two periods each), bit for bit,
-    and the setpoint a residual wrote is still there after every call; a reset starts at +A again."""
+    and the setpoint a residual wrote is still there after every call; a reset starts at +A again
+    (10 periods an episode: a phase carried over a reset would be off by half a cycle)."""
     env = MicroGravityLandingEnv(condition=2)
     dithered = DitheredAdaptiveFeedforward(PERIOD, dither=DitherSettings(50e-9, 4e-3))
     plain = make_controller("adaptive", PERIOD)
@@ -230,12 +231,27 @@ def test_the_dither_is_a_square_wave_on_the_setpoint_a_residual_holds():
         for controller in (dithered, plain):
             controller.reset()
         dithered.setpoint_m[0] = held
-        for k in range(12):
+        for k in range(10):
             plain.setpoint_m[0] = held + (50e-9 if (k // 2) % 2 == 0 else -50e-9)
             action = dithered(observation, info)
             np.testing.assert_array_equal(action, plain(observation, info))
             assert dithered.setpoint_m[0] == held
             observation, _, _, _, info = env.step(action)
+
+
+def test_the_dither_is_the_tuned_one_and_refuses_what_it_cannot_run():
+    """``adaptive-dither`` takes config/controllers.toml's 60 nm and 10 ms (5 control periods a
+    half-cycle at 1 ms; the 10 ms period rounded to whole control periods at 4 ms: 8 ms); a bad
+    amplitude or period, or one a square wave cannot switch at, is named."""
+    controller = make_controller("adaptive-dither", PERIOD)
+    assert controller.dither == DitherSettings(6e-8, 0.01)
+    assert controller.half_period == 5
+    assert make_controller("adaptive-dither", 4e-3).half_period == 1
+    for amplitude, period, match in ((-1e-9, 0.01, "amplitude_m"), (1e-8, float("nan"), "period_s")):
+        with pytest.raises(ValueError, match=match):
+            DitherSettings(amplitude, period)
+    with pytest.raises(ValueError, match="shorter than two control periods"):
+        make_controller("adaptive-dither", 1e-2)
 
 
 @pytest.mark.slow

@@ -233,7 +233,7 @@ def test_reward_keeps_a_gradient_from_millimetres_to_nanometres_and_never_pays_f
     assert reward == pytest.approx(info["reward_x"])
 
 
-@pytest.mark.parametrize("name", ["feedforward", "adaptive", "oracle"])
+@pytest.mark.parametrize("name", ["feedforward", "adaptive", "adaptive-dither", "oracle"])
 @pytest.mark.slow
 def test_a_zero_residual_is_its_base_controller_exactly(name):
     """action_mode="residual": an action of 0 leaves the base controller alone (the oracle base is
