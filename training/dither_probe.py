@@ -8,7 +8,8 @@ four held-out schedules on plants and drives drawn 1.5 times wider than training
 1000, and is paired with ``adaptive`` alone (A = 0, the same episodes): ratio of means and the
 share of seeds whose mean is lower. ``--off friction`` (or another imperfection) switches one off,
 ``--physics-step-us`` refines the step: the checks that the dither takes out the friction's bias
-and not a numerical one.
+and not a numerical one. For ``sac`` it also prints how often the policy's action flips sign
+between decisions before touchdown.
 
 Run: ``python training/dither_probe.py [--amplitudes 0.02,0.05,0.1,0.3,sac] [--seeds 13]
 [--sensors extended] [--off friction] [--physics-step-us 100]``.
@@ -24,6 +25,7 @@ from multiprocessing import Pool
 import gymnasium as gym
 import numpy as np
 
+from microg_env.analysis.metrics import contacts
 from microg_env.controllers.registry import deployed_controller, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.experiments.comparison import QUANTITIES, TEST_SEED
@@ -38,6 +40,18 @@ from microg_env.scenarios import HELD_OUT
 TASK = gym.spec("MicroGravityLanding-Residual-v4").kwargs
 #: The metrics printed.
 SHOWN = ("compensation_error", "free_fall_excursion_m", "collision_excursion_m", "collision_instant_m")
+
+
+class Recording:
+    """A policy that keeps every action it gives (one rig)."""
+
+    def __init__(self, policy) -> None:
+        self.policy, self.actions = policy, []
+
+    def predict(self, observation: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+        action, state = self.policy.predict(observation, deterministic)
+        self.actions.append(float(np.asarray(action).reshape(-1)[0]))
+        return action, state
 
 
 class SquareWave:
@@ -66,13 +80,19 @@ def episode(case: tuple[str, str, int], sensors: str, off: tuple[str, ...], step
     env = MicroGravityLandingEnv(**spec.env_kwargs())
     if candidate == "sac":
         controller = make_controller("residual-sac-adaptive", env.control_period_s)
+        controller.policy = Recording(controller.policy)
     else:
         controller = deployed_controller(SquareWave(float(candidate)), TASK)
     try:
-        metrics = run_with_metrics(env, controller, seed)[2]
+        trajectory, _, metrics = run_with_metrics(env, controller, seed)
     finally:
         env.close()
-    return {name: float(QUANTITIES[name].of(metrics)) for name in SHOWN}
+    values = {name: float(QUANTITIES[name].of(metrics)) for name in SHOWN}
+    if candidate == "sac":  # the share of its decisions before touchdown that flip the action's sign
+        found = contacts(trajectory)
+        before = controller.policy.actions[: found[0].start // controller.decision_period if found else None]
+        values["flips"] = float(np.mean(np.diff(np.sign(before)) != 0))
+    return values
 
 
 def at_least_one(text: str) -> int:
@@ -131,6 +151,12 @@ def main(argv: list[str] | None = None) -> int:
             lower = sum(np.mean([ours[s, seed] - reference[s, seed][name] for s in HELD_OUT]) < 0 for seed in seeds)
             cells.append(f"{ratio:.3f}× ({lower}/{args.seeds} seeds lower)")
         print(f"| {candidate} | " + " | ".join(cells) + " |")
+    flips = [v["flips"] for case, v in values.items() if case[0] == "sac"]
+    if flips:
+        print(
+            f"sac flips its action's sign at {np.mean(flips):.0%} of its decisions before touchdown "
+            f"({min(flips):.0%}-{max(flips):.0%} by episode)"
+        )
     return 0
 
 
