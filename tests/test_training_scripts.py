@@ -169,3 +169,16 @@ def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):
     captured = capsys.readouterr()
     assert "--policies: policy 'residual-sac-adaptive' was trained with hidden_observations" in captured.err
     assert captured.out == ""
+
+
+def test_the_dither_probe_recipe_is_the_packaged_sac_recipe_on_the_dithered_base():
+    """training/sac_on_dither.yml (docs/controllers.md's SAC on `adaptive-dither`) differs from the
+    packaged v4 SAC recipe in its base controller only."""
+    from microg_env.learning import hyperparams
+
+    env_id = "MicroGravityLanding-Residual-v4"
+    probe = hyperparams.load("sac", env_id, TRAINING / "sac_on_dither.yml").as_config()
+    packaged = hyperparams.load("sac", env_id).as_config()
+    assert probe["env_kwargs"].pop("base_controller") == "adaptive-dither"
+    assert packaged["env_kwargs"].pop("base_controller") == "adaptive"
+    assert probe == packaged

@@ -3,16 +3,18 @@ residual's own path, and the shipped SAC residual, on the held-out episodes of d
 
 Each candidate is ``adaptive`` with a residual that alternates +-A (a share of the residual's
 +-3 um) every decision (5 ms), through v4's twice high-passed setpoint, the square wave the SAC
-policy comes close to; ``sac`` is the shipped ``residual-sac-adaptive``. Every candidate runs the
+policy comes close to; ``sac`` is a learned residual (``--policy``: the shipped
+``residual-sac-adaptive`` by default, or a policy folder). Every candidate runs the
 four held-out schedules on plants and drives drawn 1.5 times wider than training's, seeds from
 1000, and is paired with ``adaptive`` alone (A = 0, the same episodes): ratio of means and the
 share of seeds whose mean is lower. ``--off friction`` (or another imperfection) switches one off,
 ``--physics-step-us`` refines the step: the checks that the dither takes out the friction's bias
 and not a numerical one. For ``sac`` it also prints how often the policy's action flips sign
-between decisions before touchdown.
+between decisions before touchdown, and its mean component in phase with ``adaptive-dither``'s
+square wave (one sign per 5 ms decision, + first; that square wave is 0.02 of the residual).
 
 Run: ``python training/dither_probe.py [--amplitudes 0.02,0.05,0.1,0.3,sac] [--seeds 13]
-[--sensors extended] [--off friction] [--physics-step-us 100]``.
+[--sensors extended] [--off friction] [--physics-step-us 100] [--policy FOLDER]``.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import gymnasium as gym
 import numpy as np
 
 from microg_env.analysis.metrics import contacts
-from microg_env.controllers.registry import deployed_controller, make_controller
+from microg_env.controllers.registry import check_controller_name, deployed_controller, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.experiments.comparison import QUANTITIES, TEST_SEED
 from microg_env.imperfections import IMPERFECTION_NAMES
@@ -65,7 +67,9 @@ class SquareWave:
         return np.where(previous > 0, -self.amplitude, self.amplitude).astype(np.float32)[:, None], None
 
 
-def episode(case: tuple[str, str, int], sensors: str, off: tuple[str, ...], step_us: float) -> dict[str, float]:
+def episode(
+    case: tuple[str, str, int], sensors: str, off: tuple[str, ...], step_us: float, policy: str
+) -> dict[str, float]:
     """The metrics of candidate ``case[0]`` on scenario ``case[1]``, seed ``case[2]``."""
     candidate, scenario, seed = case
     spec = RunSpec(
@@ -79,7 +83,7 @@ def episode(case: tuple[str, str, int], sensors: str, off: tuple[str, ...], step
     )
     env = MicroGravityLandingEnv(**spec.env_kwargs())
     if candidate == "sac":
-        controller = make_controller("residual-sac-adaptive", env.control_period_s)
+        controller = make_controller(policy, env.control_period_s)
         controller.policy = Recording(controller.policy)
     else:
         controller = deployed_controller(SquareWave(float(candidate)), TASK)
@@ -92,6 +96,8 @@ def episode(case: tuple[str, str, int], sensors: str, off: tuple[str, ...], step
         found = contacts(trajectory)
         before = controller.policy.actions[: found[0].start // controller.decision_period if found else None]
         values["flips"] = float(np.mean(np.diff(np.sign(before)) != 0))
+        actions = np.array(controller.policy.actions)
+        values["in_phase"] = float(np.mean(actions * np.where(np.arange(actions.size) % 2 == 0, 1.0, -1.0)))
     return values
 
 
@@ -129,6 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--off", default="", help="imperfections switched off, comma-separated")
     parser.add_argument("--physics-step-us", type=float, default=PHYSICS_STEP_S * 1e6)
     parser.add_argument("--workers", type=at_least_one, default=2)
+    parser.add_argument("--policy", default="residual-sac-adaptive", help="the learned residual sac runs")
     args = parser.parse_args(argv)
     off = tuple(name for name in args.off.split(",") if name)
     for name in off:
@@ -136,7 +143,11 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--off: unknown imperfection {name!r}; known: {', '.join(IMPERFECTION_NAMES)}")
     candidates = ["0", *dict.fromkeys(args.amplitudes)]
     cases = [(c, s, seed) for c in candidates for s in HELD_OUT for seed in range(TEST_SEED, TEST_SEED + args.seeds)]
-    run = partial(episode, sensors=args.sensors, off=off, step_us=args.physics_step_us)
+    try:
+        check_controller_name(args.policy)
+    except ValueError as error:
+        parser.error(f"--policy: {error}")
+    run = partial(episode, sensors=args.sensors, off=off, step_us=args.physics_step_us, policy=args.policy)
     with Pool(args.workers) as pool:
         values = dict(zip(cases, pool.map(run, cases, chunksize=4), strict=True))
     reference = {case[1:]: v for case, v in values.items() if case[0] == "0"}
@@ -151,11 +162,13 @@ def main(argv: list[str] | None = None) -> int:
             lower = sum(np.mean([ours[s, seed] - reference[s, seed][name] for s in HELD_OUT]) < 0 for seed in seeds)
             cells.append(f"{ratio:.3f}× ({lower}/{args.seeds} seeds lower)")
         print(f"| {candidate} | " + " | ".join(cells) + " |")
-    flips = [v["flips"] for case, v in values.items() if case[0] == "sac"]
-    if flips:
+    learned = [v for case, v in values.items() if case[0] == "sac"]
+    if learned:
+        flips, in_phase = [v["flips"] for v in learned], [v["in_phase"] for v in learned]
         print(
             f"sac flips its action's sign at {np.mean(flips):.0%} of its decisions before touchdown "
-            f"({min(flips):.0%}-{max(flips):.0%} by episode)"
+            f"({min(flips):.0%}-{max(flips):.0%} by episode); its component in phase with adaptive-dither's "
+            f"square wave: {np.mean(in_phase):+.3f} of the residual ({min(in_phase):+.3f} to {max(in_phase):+.3f})"
         )
     return 0
 
