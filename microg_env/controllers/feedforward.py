@@ -50,6 +50,12 @@ SUPPORT_POSITION, SUPPORT_VELOCITY, PAD_FORCE, PLACED_LOAD = (
 CONTACT_THRESHOLD_N = 0.5
 
 
+def tuned_settings(cls: type, name: str):
+    """The settings record ``cls`` of controller ``name``, each field from config/controllers.toml."""
+    entry = controller_config(name)
+    return cls(*(float(entry[f.name]) for f in fields(cls)))
+
+
 @dataclass(frozen=True)
 class FeedforwardSettings:
     """The feed-forward's own settings (config/controllers.toml, ``[feedforward]``)."""
@@ -59,8 +65,7 @@ class FeedforwardSettings:
 
     @classmethod
     def load(cls) -> FeedforwardSettings:
-        entry = controller_config("feedforward")
-        return cls(float(entry["velocity_observer_gain"]), float(entry["prediction_horizon_s"]))
+        return tuned_settings(cls, "feedforward")
 
 
 #: What the feed-forward knows of a plant, in the order of a row of :func:`plant_model`.
@@ -235,8 +240,7 @@ class AdaptiveSettings:
 
     @classmethod
     def load(cls) -> AdaptiveSettings:
-        entry = controller_config("adaptive")
-        return cls(*(float(entry[f.name]) for f in fields(cls)))
+        return tuned_settings(cls, "adaptive")
 
 
 class AdaptiveFeedforward(Feedforward):
@@ -303,8 +307,7 @@ class DitherSettings:
 
     @classmethod
     def load(cls) -> DitherSettings:
-        entry = controller_config("adaptive-dither")
-        return cls(*(float(entry[f.name]) for f in fields(cls)))
+        return tuned_settings(cls, "adaptive-dither")
 
 
 class DitheredAdaptiveFeedforward(AdaptiveFeedforward):
