@@ -47,7 +47,7 @@ def shipped_folders() -> list[str]:
 
 def test_wheel_contains_the_hyperparameters_and_the_shipped_policy(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
-    for name in ("ppo.yml", "sac.yml"):
+    for name in ("ppo.yml", "sac.yml", "tqc.yml"):
         assert f"microg_env/hyperparams/{name}" in names
     assert shipped_folders(), "no policy is shipped"
     # What a shipped policy runs and says of itself; its stable-baselines3 files (only to fine-tune) stay out.

@@ -156,12 +156,17 @@ def add_commands(commands) -> None:
     train = commands.add_parser(
         "train",
         help="train a learned controller with stable-baselines3 (rl-baselines3-zoo layout)",
-        description="Train PPO or SAC on MicroGravityLanding-v1 with the hyperparameters of microg_env/hyperparams/"
-        "<algo>.yml (packaged), into logs/<algo>/<env>_<n>/: config, best model, normalisation, checkpoints, "
-        "TensorBoard events, monitor files, evaluations by the project's metrics and the exported policy.",
+        description="Train PPO, SAC or TQC on MicroGravityLanding-v1 with the hyperparameters of "
+        "microg_env/hyperparams/<algo>.yml (packaged), into logs/<algo>/<env>_<n>/: config, best model, "
+        "normalisation, checkpoints, TensorBoard events, monitor files, evaluations by the project's metrics "
+        "and the exported policy.",
     )
     defaults = TrainSettings()
-    train.add_argument("--algo", choices=ALGORITHMS, help=f"algorithm, stable-baselines3's (default {defaults.algo})")
+    train.add_argument(
+        "--algo",
+        choices=ALGORITHMS,
+        help=f"algorithm: stable-baselines3's PPO or SAC, sb3-contrib's TQC (default {defaults.algo})",
+    )
     train.add_argument("--env", dest="env_id", metavar="ENV", help=f"environment id (default {defaults.env_id})")
     train.add_argument(
         "--seed", type=seed_number, help=f"seed of the model and the training environments (default {defaults.seed})"

@@ -17,10 +17,11 @@ MODEL_FILE, NORMALIZATION_FILE = "model.zip", "vecnormalize.pkl"
 
 
 def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], str, bool]:
-    """The deterministic actor of a PPO or SAC ``model``: its layers' weights and biases (float64,
-    the first on the whole observation the model was trained on), the activation between them and
-    whether its output is squashed (SAC) rather than clipped (PPO)."""
+    """The deterministic actor of a PPO, SAC or TQC ``model``: its layers' weights and biases
+    (float64, the first on the whole observation the model was trained on), the activation between
+    them and whether its output is squashed (SAC, TQC: SAC's actor) rather than clipped (PPO)."""
     import torch.nn as nn
+    from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.torch_layers import FlattenExtractor
 
@@ -28,11 +29,11 @@ def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, 
         policy = model.policy
         extractor, hidden = policy.pi_features_extractor, policy.mlp_extractor.policy_net
         head, squash = policy.action_net, False
-    elif isinstance(model, SAC):
+    elif isinstance(model, (SAC, TQC)):
         actor = model.actor
         extractor, hidden, head, squash = actor.features_extractor, actor.latent_pi, actor.mu, True
     else:
-        raise ValueError(f"can export PPO and SAC policies, got {type(model).__name__}")
+        raise ValueError(f"can export PPO, SAC and TQC policies, got {type(model).__name__}")
     if not isinstance(extractor, FlattenExtractor):
         raise ValueError(f"can export MLP policies only, got a {type(extractor).__name__}")
     linear = [m for m in hidden if isinstance(m, nn.Linear)] + [head]
@@ -46,7 +47,7 @@ def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, 
 
 
 def export_policy(model: Any, vecnormalize: Any | None) -> MLPPolicy:
-    """The deterministic actor of a PPO or SAC ``model`` (:func:`actor_layers`) and the observation
+    """The deterministic actor of a PPO, SAC or TQC ``model`` (:func:`actor_layers`) and the observation
     statistics of ``vecnormalize`` (None: no normalisation) as an :class:`MLPPolicy`."""
     weights, biases, activation, squash = actor_layers(model)
     size = model.observation_space.shape[0]

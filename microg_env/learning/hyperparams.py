@@ -25,7 +25,7 @@ from microg_env.files import read_yaml
 from microg_env.validate import shown
 
 #: Algorithms ``microg train`` runs (stable-baselines3's).
-ALGORITHMS = ("ppo", "sac")
+ALGORITHMS = ("ppo", "sac", "tqc")
 #: Algorithm arguments microg train sets itself (from its options), refused in a file.
 SET_BY_TRAIN = ("device", "seed", "verbose", "tensorboard_log", "env", "policy")
 #: Algorithm arguments that count something, each a positive integer.

@@ -99,9 +99,12 @@ class TrainSettings:
 
 
 def algorithm(name: str):
+    """The algorithm class of ``name`` (one of :data:`~microg_env.learning.hyperparams.ALGORITHMS`);
+    TQC is sb3-contrib's (truncated quantile critics on SAC's actor)."""
+    from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC
 
-    return {"ppo": PPO, "sac": SAC}[name]
+    return {"ppo": PPO, "sac": SAC, "tqc": TQC}[name]
 
 
 def session_seed(seed: int, steps_done: int) -> int:

@@ -35,7 +35,7 @@ RESIDUAL = {"action_mode": "residual", "base_controller": "feedforward", "decisi
 # -- hyperparameter files ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
+@pytest.mark.parametrize("algo", ["ppo", "sac", "tqc"])
 def test_the_packaged_files_are_the_repositorys_and_parse(algo):
     params = hp.load(algo, ENV_ID)
     assert Path(params.source).read_bytes() == (REPO / "microg_env" / "hyperparams" / f"{algo}.yml").read_bytes()
@@ -105,13 +105,14 @@ def _vec_env(**kwargs):
     return venv
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
+@pytest.mark.parametrize("algo", ["ppo", "sac", "tqc"])
 @pytest.mark.slow
 def test_the_numpy_export_acts_as_stable_baselines3_does(algo):
+    from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC
 
     venv = _vec_env()
-    cls = {"ppo": PPO, "sac": SAC}[algo]
+    cls = {"ppo": PPO, "sac": SAC, "tqc": TQC}[algo]
     model = cls("MlpPolicy", venv, seed=1, device="cpu", policy_kwargs={"net_arch": [16, 16]})
     head = model.policy.action_net if algo == "ppo" else model.actor.mu
     with __import__("torch").no_grad():  # a head far from zero, so clipping and squashing show
@@ -221,7 +222,7 @@ def _tiny_hyperparams(tmp_path: Path, algo: str) -> Path:
     entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / f"{algo}.yml").read_text())[ENV_ID]
     entry |= {"n_envs": 2, "policy_kwargs": "dict(net_arch=[16, 16])"}
     entry |= {"n_steps": 64, "batch_size": 64, "n_epochs": 2} if algo == "ppo" else {}
-    entry |= {"learning_starts": 50, "buffer_size": 5000, "batch_size": 32} if algo == "sac" else {}
+    entry |= {"learning_starts": 50, "buffer_size": 5000, "batch_size": 32} if algo != "ppo" else {}
     path = tmp_path / f"{algo}.yml"
     path.write_text(yaml.safe_dump({ENV_ID: entry}))
     return path
@@ -329,6 +330,23 @@ def test_resume_continues_the_step_count_the_statistics_and_the_log(ppo_run):
     second_session = (folder / "monitor" / "session-1.monitor.csv").read_text().splitlines()
     assert first_session[0].startswith("#")  # the first session's file kept, not replaced
     assert second_session[0].startswith("#")  # the resumed session writes its own
+
+
+@pytest.mark.slow
+def test_tqc_trains_and_ships_a_policy_the_controllers_run(tmp_path):
+    """sb3-contrib's TQC through microg train: SAC's actor, so the exported policy acts as the
+    model does, and its card names the algorithm."""
+    from sb3_contrib import TQC
+
+    folder = train(_settings(tmp_path, "tqc", 128))
+    card = json.loads((folder / "policy" / "policy.json").read_text())
+    assert card["algo"] == "tqc"
+    model = TQC.load(folder / "policy" / "model.zip", device="cpu")
+    assert model.critic.n_quantiles == 25  # the packaged recipe's critic, not SAC's
+    exported = make_controller(str(folder / "policy"), 1e-3).policy
+    observations = np.random.default_rng(0).normal(0.0, 1.0, (50, 10)).astype(np.float32)
+    theirs = model.predict(exported.normalize(observations), deterministic=True)[0]
+    np.testing.assert_allclose([exported.predict(o)[0] for o in observations], theirs, atol=2e-6)
 
 
 @pytest.mark.slow
