@@ -44,12 +44,19 @@ MAX_SPEED_M_S = ScrewStageParams().max_speed_m_per_s
 #: What an action is: the drive's speed reference (``speed``) or an x setpoint on a base
 #: controller (``residual``).
 ACTION_MODES = ("speed", "residual")
+#: The reward's descent term (the environment's ``reward_descent_weight``): the velocity error of
+#: each stage's descent against the ideal m g / (M + m) from the descent fit's start on
+#: (:func:`~microg_env.envs.period.score_descent`), scored in decades as x is, from
+#: ``reward_descent_scale_m_s`` (by default DESCENT_SCALE_M_S: about the scatter the lander's
+#: vibration leaves in one period's error, 2-6e-8 m/s measured with ``adaptive`` on training draws)
+#: to DESCENT_LIMIT_M_S (five decades up, as x's limit is above its scale), where it scores 0.
+DESCENT_SCALE_M_S, DESCENT_LIMIT_M_S = 1e-7, 1e-2
 #: The x setpoint that the action +-1 stands for in the residual action mode, m (the default of
 #: the environment's ``residual_limit_m``).
 RESIDUAL_LIMIT_M = 1e-6
 #: The corner of the residual's high-pass in ``MicroGravityLanding-Residual-v2`` and -v3, Hz. Its time
 #: constant, 1/(2 pi 2 Hz) = 80 ms, lets a held residual decay by e^-2.5 within the 0.2 s that
-#: the descent fit waits after a weight is placed (analysis.metrics.SETTLE_S), so the residual
+#: the descent fit waits after a weight is placed (scenarios.SETTLE_S), so the residual
 #: shapes transients while the base controller keeps the steady state; it is the corner
 #: ``adaptive`` high-passes its cogging error at too.
 RESIDUAL_HIGHPASS_HZ = 2.0

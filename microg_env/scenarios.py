@@ -24,6 +24,10 @@ from microg_env.validate import FieldError
 MIN_DURATION_S, MAX_DURATION_S = 0.01, 600.0
 #: Lowest start or switch height, m: a foot 0.1 mm above the pad is as good as on it.
 MIN_HEIGHT_M = 1.0e-4
+#: Time after a weight is placed before its stage's descent counts, s: fitted (the compensation
+#: error, analysis.metrics) and scored (the reward's descent term, envs.period.score_descent). The
+#: PID loop settles in ~0.1 s (closed-loop pair at ~140 rad/s, damping ~0.7).
+SETTLE_S = 0.2
 #: Lightest test weight, kg: 1 g makes a 1.6e-6 g field on the 620 kg lander, far below the
 #: rig's 1e-4 g level (Conclusions).
 MIN_LOAD_KG = 1.0e-3

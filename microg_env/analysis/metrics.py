@@ -33,11 +33,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from microg_env.scenarios import SETTLE_S
 from microg_env.trajectory import Trajectory
 
-#: Time skipped after a weight is placed before the descent is fitted, s: the PID loop settles
-#: in ~0.1 s (closed-loop pair at ~140 rad/s, damping ~0.7).
-SETTLE_S = 0.2
 #: Shortest free fall (after settling) a descent acceleration is fitted over, s.
 MIN_FIT_S = 1.0
 #: Windows after the first touchdown over which the paper's "change at the instant of collision"

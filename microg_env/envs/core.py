@@ -29,6 +29,7 @@ from microg_env.envs import period
 from microg_env.envs.settings import TaskSettings
 from microg_env.imperfections import apply_imperfections
 from microg_env.interface import (
+    DESCENT_LIMIT_M_S,
     MAX_SPEED_M_S,
     OBSERVATION_INDEX,
     SCALES,
@@ -37,7 +38,7 @@ from microg_env.interface import (
     residual_setpoint,
 )
 from microg_env.params import MAX_CONTROL_STEPS, RigParams
-from microg_env.scenarios import LoadStep, Scenario
+from microg_env.scenarios import SETTLE_S, LoadStep, Scenario
 from microg_env.sim.limits import check_pad
 from microg_env.sim.model import (
     SLEW_PARAMETER,
@@ -71,6 +72,8 @@ TASK_ATTRIBUTES = (
     "residual_highpass_hz",
     "residual_highpass_order",
     "reward_scale_m",
+    "reward_descent_weight",
+    "reward_descent_scale_m_s",
     "reset_noise_scale",
     "xml_file",
 )
@@ -96,6 +99,7 @@ INFO_KEYS = (
     "servo_torque_n_m",
     "compensation_error",
     "reward_x",
+    "descent_velocity_error_m_s",
     "termination_reason",
 )
 
@@ -217,7 +221,11 @@ class LandingCore:
         self.last_readings = np.zeros((2, n))  # ruler and encoder at the previous period
         self.accelerometer = np.zeros(n)  # the accelerometer's last reading, m/s^2
         self.fresh = np.ones(n, dtype=bool)  # no previous reading yet: rates are 0
-        self.reward_x = np.zeros(n)  # the reward of the last control period
+        self.reward_x = np.zeros(n)  # the x term of the last control period's reward
+        self.reward = np.zeros(n)  # the last control period's reward (period.observe)
+        # each rig's descent window (period.score_descent): start s, velocity there, ideal
+        # acceleration, last velocity error, touched
+        self.descent = np.zeros((n, 5))
         self._positions = np.arange(n)
         self._period_span_s = self.physics_step_s * self.frame_skip  # the drive's reference ramps this long
         self._no_field = np.zeros((0, 0, 0))  # the ideal drive has no slew limiter to set
@@ -327,6 +335,7 @@ class LandingCore:
         if self.residual_stage_m is not None:
             self.residual_stage_m[ids] = 0.0
         self.fresh[ids] = True
+        self.descent[ids] = (np.inf, np.nan, 0.0, 0.0, 0.0)  # a window opens when the first weight is placed
         self._noise.restart(ids)
         if self.base is not None:
             self.base.reset(ids)
@@ -352,7 +361,11 @@ class LandingCore:
             self.placed_load_kg[i] = float(np.dot(self.loads_kg[i], placed[j]))
             # The compensation error is measured against the weight placed (the first before any is).
             reference = max(self.placed_load_kg[i], self.loads_kg[i, 0])
-            self.reference_weight_n[i] = reference * episode.params.gravity_m_s2
+            g = episode.params.gravity_m_s2
+            self.reference_weight_n[i] = reference * g
+            if not self.descent[i, 4]:  # the stage's descent window: SETTLE_S on, until the pad is touched
+                ideal = -reference * g / (episode.params.lander.mass_kg + reference)
+                self.descent[i, :3] = (self.steps[i] * self.control_period_s + SETTLE_S, np.nan, ideal)
 
     # -- stepping ------------------------------------------------------------------------------
 
@@ -387,7 +400,7 @@ class LandingCore:
             code = self._control_period(rigs, positions, actions, command, rngs)
             going = self._going[: rigs.size]
             left = period.tally(
-                rigs, positions, code, self.steps, self.max_steps, self.reward_x, total, periods, codes, truncated,
+                rigs, positions, code, self.steps, self.max_steps, self.reward, total, periods, codes, truncated,
                 going,
             )  # fmt: skip
             if left == 0:
@@ -427,7 +440,7 @@ class LandingCore:
         actions, codes = np.zeros(1), self._codes[:1]
         sums = (np.zeros(1), np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros(1, dtype=bool))
         sums = (*sums, self._going[:1])  # the step's total, periods, codes, truncated, going
-        tally_args, state_args = (ids, ids, codes, self.steps, self.max_steps, self.reward_x), self._state_args(ids)
+        tally_args, state_args = (ids, ids, codes, self.steps, self.max_steps, self.reward), self._state_args(ids)
         args = (
             ids, actions, self.observation, pid.kernel_args(), self._drive_args(ids, ids, actions, self._no_commands),
             self._observe_args(ids, codes, self._height[:1]), tally_args, sums, state_args, self._missing, states,
@@ -481,8 +494,8 @@ class LandingCore:
 
     def _observe(self, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
         """Place the test weights of rigs ``ids`` that came due, read their sensors into their
-        observation rows (noise from each rig's generator) and score x into ``reward_x``; returns
-        their termination codes."""
+        observation rows (noise from each rig's generator) and score the period into ``reward``
+        (x into ``reward_x``, the descent into ``descent``); returns their termination codes."""
         codes, height = self._codes[: ids.size], self._height[: ids.size]
         while True:
             if self.sensors.noisy and self._noise.exhausted:
@@ -510,7 +523,8 @@ class LandingCore:
             noise.used, self.last_readings, self.fresh, self.accelerometer, self.placed_load_kg,
             self.previous_action, self.base_command, SCALES, self.control_period_s, self.observation,
             self.reward_x, self.reward_scale_m, self.x_limit_m, low, high, self._floor, codes, self.next_load,
-            self.load_count, self.switch_height_m, height,
+            self.load_count, self.switch_height_m, height, physics.qvel, rig.screw_dof, rig.qzs_dof, self.steps,
+            self.descent, self.reward_descent_weight, self.reward_descent_scale_m_s, DESCENT_LIMIT_M_S, self.reward,
         )  # fmt: skip
 
     # -- what the rigs show ----------------------------------------------------------------------
@@ -521,7 +535,7 @@ class LandingCore:
         return qpos[ids, self.rig.screw_qpos] + qpos[ids, self.rig.qzs_qpos]
 
     def state(self, ids: np.ndarray) -> np.ndarray:
-        """The true physical state of rigs ``ids``, (n, 17): one row per rig, one column per
+        """The true physical state of rigs ``ids``, (n, 18): one row per rig, one column per
         :data:`INFO_KEYS` entry but the termination reason."""
         out = np.empty((ids.size, len(INFO_KEYS) - 1))
         period.state(*self._state_args(ids), out)
@@ -536,7 +550,7 @@ class LandingCore:
             physics.qfrc_applied, rig.screw_qpos, rig.qzs_qpos, rig.screw_dof, rig.qzs_dof, rig.servo,
             self._force_adr, self._drift_dof == rig.qzs_dof, self.x_stiffness, self.steps, self.control_period_s,
             self.accelerometer, self.placed_load_kg, self.next_load, self.command, setpoint,
-            self.reference_weight_n, self.reward_x,
+            self.reference_weight_n, self.reward_x, self.descent,
         )  # fmt: skip
 
     def shown(self, ids: np.ndarray | None = None) -> np.ndarray:

@@ -81,9 +81,14 @@ class MicroGravityLandingEnv(gym.Env):
     Per control period, ``x_reward(x) = 1 - log(1 + (x/x0)^2) / log(1 + (x_max/x0)^2)`` with x the
     true relative displacement, x0 = ``reward_scale_m`` (10 nm, twice the ruler's step) and x_max
     the guide's half stroke less the stop margin, 24.9 mm, where the episode ends: it falls by the
-    same amount for every decade of x, from nanometres to millimetres, and lies in [0, 1]. A step's
-    reward is its mean over the control periods it spans. Never negative, it never makes ending an
-    episode pay. ``info["reward_x"]`` holds it.
+    same amount for every decade of x, from nanometres to millimetres, and lies in [0, 1].
+    ``info["reward_x"]`` holds it. With ``reward_descent_weight`` w > 0 (default 0) the period's
+    reward is ``(1 - w) x_reward(x) + w d``: d scores, in decades as x is (from
+    ``reward_descent_scale_m_s``, 0.1 um/s, to 10 mm/s, floored at 0), the descent's velocity error
+    ``info["descent_velocity_error_m_s"]`` = v(t) - v(t0) - a_ideal (t - t0), the compensation
+    error integrated over each stage's descent from 0.2 s after its weight is placed (t0) to the
+    first pad contact (0, d = 1, outside it). A step's reward is its mean over the control periods
+    it spans. Never negative, it never makes ending an episode pay.
 
     ## Starting State
     Balanced at rest with the foot at the scenario's descent height, plus a uniform perturbation
@@ -124,6 +129,8 @@ class MicroGravityLandingEnv(gym.Env):
     | ``params`` | the rig (the scenario's explicit overrides are applied on top) |
     | ``xml_file`` | an MJCF template other than the packaged ``scene.xml`` |
     | ``reward_scale_m`` | x0 of the reward, m |
+    | ``reward_descent_weight`` | the reward's share paid for the descent's velocity error (see Rewards) |
+    | ``reward_descent_scale_m_s`` | the velocity error that term counts from, m/s |
     | ``reset_noise_scale`` | half-width of the start-height perturbation, m |
     | ``render_mode``, ``width``, ``height``, ``camera_name`` | rendering (None, 640, 480, "side") |
 
@@ -132,7 +139,7 @@ class MicroGravityLandingEnv(gym.Env):
     the accelerometer reads), ``support_position_m``, ``support_velocity_m_s``,
     ``support_force_deviation_n``, ``pad_force_n``, ``placed_load_kg``, ``stage``, ``command_m_s``
     (the speed command the drive received), ``setpoint_m``, ``servo_torque_n_m``,
-    ``compensation_error``, ``reward_x`` and ``termination_reason``.
+    ``compensation_error``, ``reward_x``, ``descent_velocity_error_m_s`` and ``termination_reason``.
 
     Copies (``pickle``, ``cloudpickle``, ``copy.deepcopy``) carry the episode: a copy made mid-episode
     continues exactly as the original would.

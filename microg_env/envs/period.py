@@ -81,6 +81,7 @@ def observe(
     last_readings, fresh, accelerometer, placed_load_kg, previous_action, base_command, scales,
     control_period_s, observation, reward_x, reward_scale_m, x_limit_m,
     screw_low, screw_high, floor_m, codes_out, next_load, load_count, switch_height_m, height_out,
+    qvel, screw_dof, qzs_dof, steps, descent, descent_weight, descent_scale_m_s, descent_limit_m_s, reward,
 ):  # fmt: skip
     """Read the sensors of rigs ``ids`` into their ``observation`` rows, and score and check them.
 
@@ -90,8 +91,10 @@ def observe(
     standard normal ``normals``), ruler and encoder quantised to their ``resolution``; rates by
     backward difference (0 at a rig's first reading). The observation is
     each reading over its scale, as float32. ``reward_x[i]`` is :func:`x_reward` of the true x;
-    ``codes_out[j]`` the termination code (0: going on; 1 guide stroke, 2 screw stroke, 3 pad
-    bottomed out).
+    :func:`score_descent` writes the descent's velocity error into ``descent[i, 3]``, and
+    ``reward[i]`` is the period's reward: ``reward_x[i]`` weighted ``1 - descent_weight``, plus
+    the descent's score weighted ``descent_weight``. ``codes_out[j]`` is the termination code
+    (0: going on; 1 guide stroke, 2 screw stroke, 3 pad bottomed out).
 
     First, though: if some rig has no noise draw left, nothing is read and it returns -2, for the
     draws to be made (:class:`~microg_env.sim.sensors.NoiseDraws`) and the call made again; then
@@ -150,6 +153,13 @@ def observe(
         for k in range(10):
             observation[i, k] = np.float32(raw[k] / scales[k])
         reward_x[i] = x_reward(x, reward_scale_m, x_limit_m)
+        error = score_descent(
+            descent[i], steps[i] * control_period_s, qvel[i, screw_dof] + qvel[i, qzs_dof], sensordata[i, force_adr]
+        )
+        reward[i] = reward_x[i]
+        if descent_weight > 0.0:
+            score = max(x_reward(error, descent_scale_m_s, descent_limit_m_s), 0.0)
+            reward[i] = (1.0 - descent_weight) * reward_x[i] + descent_weight * score
         code = 0
         if screw + x <= floor_m:
             code = 3
@@ -162,13 +172,35 @@ def observe(
 
 
 @jit
-def tally(ids, positions, codes, steps, max_steps, reward_x, total, periods, codes_out, truncated, going):
+def score_descent(descent, time_s, velocity_m_s, pad_force_n):
+    """The velocity error of one rig's descent at ``time_s``, m/s (0 outside a descent window),
+    its state ``descent`` updated: [window start s (inf: none), lander velocity at the start (NaN:
+    not yet taken), ideal descent acceleration m g / (M + m) (Table 2), the last error, 1 once the
+    foot has touched the pad].
+
+    The error is v(t) - v(t0) - a_ideal (t - t0) from the window's start t0 (``SETTLE_S`` after the
+    stage's weight is placed) on: the stage's compensation error a / a_ideal - 1 integrated, so a
+    constant bias grows steadily while the vibration that dominates an instant's acceleration
+    averages out. The window closes for good at the first pad contact (``pad_force_n`` > 0)."""
+    if pad_force_n > 0.0:
+        descent[0], descent[4] = np.inf, 1.0
+    error = 0.0
+    if time_s >= descent[0]:
+        if np.isnan(descent[1]):
+            descent[0], descent[1] = time_s, velocity_m_s
+        error = velocity_m_s - descent[1] - descent[2] * (time_s - descent[0])
+    descent[3] = error
+    return error
+
+
+@jit
+def tally(ids, positions, codes, steps, max_steps, reward, total, periods, codes_out, truncated, going):
     """Add one period of rigs ``ids`` (at ``positions`` of the step's outputs) to the step's sums;
     ``going[j]``: rig j neither terminated nor reached its last step. Returns how many go on."""
     count = 0
     for j in range(ids.size):
         i, p = ids[j], positions[j]
-        total[p] += reward_x[i]
+        total[p] += reward[i]
         periods[p] += 1
         codes_out[p] = codes[j]
         truncated[p] = codes[j] == 0 and steps[i] >= max_steps[i]
@@ -181,7 +213,7 @@ def tally(ids, positions, codes, steps, max_steps, reward_x, total, periods, cod
 def state(
     ids, qpos, qvel, qacc, sensordata, actuator_force, qfrc_applied, screw_qpos, qzs_qpos, screw_dof, qzs_dof,
     servo, force_adr, drift_on_qzs, x_stiffness, steps, control_period_s, accelerometer, placed_load_kg,
-    next_load, command, setpoint_m, reference_weight_n, reward_x, out,
+    next_load, command, setpoint_m, reference_weight_n, reward_x, descent, out,
 ):  # fmt: skip
     """The true physical state of rigs ``ids``, one row of ``out`` per rig in the order of the
     environment's ``INFO_KEYS`` (without the termination reason)."""
@@ -209,6 +241,7 @@ def state(
         row[14] = actuator_force[i, servo]
         row[15] = deviation / reference_weight_n[i]
         row[16] = reward_x[i]
+        row[17] = descent[i, 3]
 
 
 @jit

@@ -18,6 +18,7 @@ from microg_env.controllers.registry import BASELINES
 from microg_env.imperfections import DomainRandomization, Imperfections
 from microg_env.interface import (
     ACTION_MODES,
+    DESCENT_SCALE_M_S,
     RESIDUAL_HIGHPASS_RANGE_HZ,
     RESIDUAL_LIMIT_M,
     SENSOR_SETS,
@@ -56,6 +57,8 @@ class TaskSettings:
     params: RigParams | None = None
     xml_file: str | None = None
     reward_scale_m: float = 1e-8
+    reward_descent_weight: float = 0.0
+    reward_descent_scale_m_s: float = DESCENT_SCALE_M_S
     reset_noise_scale: float = 0.0
 
     def __post_init__(self) -> None:
@@ -85,6 +88,9 @@ class TaskSettings:
         put("residual_highpass_hz", corner)
         put("residual_highpass_order", highpass_order(self.residual_highpass_order))
         put("reward_scale_m", validate.between("reward_scale_m", self.reward_scale_m, 1e-12, 1e-3, "m"))
+        put("reward_descent_weight", validate.between("reward_descent_weight", self.reward_descent_weight, 0.0, 1.0))
+        scale = validate.between("reward_descent_scale_m_s", self.reward_descent_scale_m_s, 1e-12, 1e-3, "m/s")
+        put("reward_descent_scale_m_s", scale)
         put("reset_noise_scale", validate.non_negative("reset_noise_scale", self.reset_noise_scale, "m"))
         if self.scenario_sampler is not None and self.reset_noise_scale > 0:
             raise FieldError(

@@ -46,8 +46,16 @@ def _rollout(env, actions, seed):
         {"condition": 3, "domain_randomization": True},  # every imperfection, randomised plants
         {"condition": 1, "domain_randomization": DomainRandomization.full()},  # and randomised drives
         {"condition": 2, "action_mode": "residual", "base_controller": "feedforward", "decision_period": 3},
+        {  # past the descent window's start at 0.2 s: the descent term scored per rig
+            "condition": 1,
+            "action_mode": "residual",
+            "base_controller": "adaptive-dither",
+            "decision_period": 3,
+            "reward_descent_weight": 0.5,
+            "domain_randomization": True,
+        },
     ],
-    ids=["speed-randomised", "speed-randomised-drive", "residual-feedforward"],
+    ids=["speed-randomised", "speed-randomised-drive", "residual-feedforward", "residual-descent-reward"],
 )
 @pytest.mark.slow
 def test_each_rig_runs_exactly_the_single_envs_episode(kwargs):
