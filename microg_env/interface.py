@@ -49,7 +49,8 @@ ACTION_MODES = ("speed", "residual")
 #: (:func:`~microg_env.envs.period.score_descent`), scored in decades as x is, from
 #: ``reward_descent_scale_m_s`` (by default DESCENT_SCALE_M_S: about the scatter the lander's
 #: vibration leaves in one period's error, 2-6e-8 m/s measured with ``adaptive`` on training draws)
-#: to DESCENT_LIMIT_M_S (five decades up, as x's limit is above its scale), where it scores 0.
+#: to DESCENT_LIMIT_M_S (five decades up; x's reward spans 6.4, 10 nm to 24.9 mm), where it
+#: scores 0 (and below, beyond it).
 DESCENT_SCALE_M_S, DESCENT_LIMIT_M_S = 1e-7, 1e-2
 #: The x setpoint that the action +-1 stands for in the residual action mode, m (the default of
 #: the environment's ``residual_limit_m``).

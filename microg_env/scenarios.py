@@ -135,8 +135,8 @@ class Scenario:
         return with_overrides(base, self.overrides) if self.overrides else base
 
     def ideal_descent_m_s2(self, lander_mass_kg: float, gravity_m_s2: float) -> tuple[float, ...]:
-        """Ideal descent acceleration of each load stage, m g / (M + m), signed up positive (Table 2)."""
-        return tuple(-m * gravity_m_s2 / (lander_mass_kg + m) for m in self.stages_kg)
+        """Ideal descent acceleration of each load stage (:func:`ideal_descent_m_s2`)."""
+        return tuple(ideal_descent_m_s2(m, lander_mass_kg, gravity_m_s2) for m in self.stages_kg)
 
     def ideal_touchdown_s(self, lander_mass_kg: float, gravity_m_s2: float) -> float:
         """Time of the touchdown after the ideal free fall through the load stages, s."""
@@ -159,6 +159,11 @@ class Scenario:
             -a * (top - bottom) for a, top, bottom in zip(accelerations, heights[:-1], heights[1:], strict=True)
         )
         return math.sqrt(2.0 * energy)
+
+
+def ideal_descent_m_s2(load_kg: float, lander_mass_kg: float, gravity_m_s2: float) -> float:
+    """Ideal descent acceleration with ``load_kg`` placed, m g / (M + m), signed up positive (Table 2)."""
+    return -load_kg * gravity_m_s2 / (lander_mass_kg + load_kg)
 
 
 #: The paper's test conditions (Table 2; Section 3.2 for condition 3's second stage at 25 mm).

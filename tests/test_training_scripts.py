@@ -182,3 +182,16 @@ def test_the_dither_probe_recipe_is_the_packaged_sac_recipe_on_the_dithered_base
     assert probe["env_kwargs"].pop("base_controller") == "adaptive-dither"
     assert packaged["env_kwargs"].pop("base_controller") == "adaptive"
     assert probe == packaged
+
+
+def test_the_descent_reward_probe_recipe_is_the_dither_probe_paid_for_its_descent():
+    """training/sac_descent_reward.yml differs from training/sac_on_dither.yml in the reward's
+    descent share only."""
+    from microg_env.learning import hyperparams
+
+    env_id = "MicroGravityLanding-Residual-v4"
+    probe = hyperparams.load("sac", env_id, TRAINING / "sac_descent_reward.yml").as_config()
+    dither = hyperparams.load("sac", env_id, TRAINING / "sac_on_dither.yml").as_config()
+    assert probe["env_kwargs"].pop("reward_descent_weight") == 0.5
+    assert "reward_descent_weight" not in dither["env_kwargs"]
+    assert probe == dither

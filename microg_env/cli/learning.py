@@ -43,6 +43,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         import stable_baselines3  # noqa: F401
         import torch  # noqa: F401
 
+        if args.algo == "tqc":
+            import sb3_contrib  # noqa: F401
         from microg_env.learning.train import TrainingInterrupted, resolve, resumed_run, train
     except ImportError:
         raise ValueError("microg train needs the train extra: pip install 'microg-env[train]'") from None

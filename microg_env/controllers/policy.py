@@ -7,8 +7,8 @@ controller runs in the speed-action environment of every other controller, on th
 it rebuilds the observation the policy was trained on (its own previous action and the base
 controller's last command in entries 8 and 9) and composes the policy with its base.
 
-:class:`MLPPolicy` is a trained stable-baselines3 actor (PPO or SAC) exported to NumPy with its
-observation normalisation (``VecNormalize``), so a shipped policy runs without torch. A policy folder
+:class:`MLPPolicy` is a trained stable-baselines3 or sb3-contrib actor (PPO, SAC, TQC) exported to
+NumPy with its observation normalisation (``VecNormalize``), so a shipped policy runs without torch. A policy folder
 holds the exported network (``policy.npz``) and the command, seed, budget and results of its
 training (``policy.json``); a training run's folder also the stable-baselines3 model and
 normalisation to fine-tune from (``model.zip``, ``vecnormalize.pkl``, kept for the shipped policies
@@ -43,7 +43,7 @@ from microg_env.interface import (
 )
 from microg_env.params import CONTROL_PERIOD_S
 
-#: Activations of the exported networks (stable-baselines3's defaults: PPO tanh, SAC ReLU).
+#: Activations of the exported networks (stable-baselines3's defaults: PPO tanh, SAC and TQC ReLU).
 ACTIVATIONS = {"tanh": np.tanh, "relu": lambda z: np.maximum(z, 0.0)}
 #: Files of an exported policy folder.
 NETWORK_FILE, CARD_FILE = "policy.npz", "policy.json"
@@ -62,7 +62,7 @@ class MLPPolicy:
     weights: tuple[np.ndarray, ...]  # (out, in) per layer, as torch stores them
     biases: tuple[np.ndarray, ...]
     activation: str  # between hidden layers
-    squash: bool  # tanh on the output (SAC) rather than a clip (PPO)
+    squash: bool  # tanh on the output (SAC, TQC) rather than a clip (PPO)
     obs_mean: np.ndarray
     obs_var: np.ndarray
     clip_obs: float

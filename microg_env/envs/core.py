@@ -38,7 +38,7 @@ from microg_env.interface import (
     residual_setpoint,
 )
 from microg_env.params import MAX_CONTROL_STEPS, RigParams
-from microg_env.scenarios import SETTLE_S, LoadStep, Scenario
+from microg_env.scenarios import SETTLE_S, LoadStep, Scenario, ideal_descent_m_s2
 from microg_env.sim.limits import check_pad
 from microg_env.sim.model import (
     SLEW_PARAMETER,
@@ -225,7 +225,7 @@ class LandingCore:
         self.reward = np.zeros(n)  # the last control period's reward (period.observe)
         # each rig's descent window (period.score_descent): start s, velocity there, ideal
         # acceleration, last velocity error, touched
-        self.descent = np.zeros((n, 5))
+        self.descent = np.tile((np.inf, np.nan, 0.0, 0.0, 0.0), (n, 1))  # as reset() leaves it
         self._positions = np.arange(n)
         self._period_span_s = self.physics_step_s * self.frame_skip  # the drive's reference ramps this long
         self._no_field = np.zeros((0, 0, 0))  # the ideal drive has no slew limiter to set
@@ -335,7 +335,7 @@ class LandingCore:
         if self.residual_stage_m is not None:
             self.residual_stage_m[ids] = 0.0
         self.fresh[ids] = True
-        self.descent[ids] = (np.inf, np.nan, 0.0, 0.0, 0.0)  # a window opens when the first weight is placed
+        self.descent[ids] = (np.inf, np.nan, 0.0, 0.0, 0.0)  # no window until the first weight is placed
         self._noise.restart(ids)
         if self.base is not None:
             self.base.reset(ids)
@@ -364,7 +364,7 @@ class LandingCore:
             g = episode.params.gravity_m_s2
             self.reference_weight_n[i] = reference * g
             if not self.descent[i, 4]:  # the stage's descent window: SETTLE_S on, until the pad is touched
-                ideal = -reference * g / (episode.params.lander.mass_kg + reference)
+                ideal = ideal_descent_m_s2(reference, episode.params.lander.mass_kg, g)
                 self.descent[i, :3] = (self.steps[i] * self.control_period_s + SETTLE_S, np.nan, ideal)
 
     # -- stepping ------------------------------------------------------------------------------

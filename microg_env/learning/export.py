@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -19,17 +20,19 @@ MODEL_FILE, NORMALIZATION_FILE = "model.zip", "vecnormalize.pkl"
 def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], str, bool]:
     """The deterministic actor of a PPO, SAC or TQC ``model``: its layers' weights and biases
     (float64, the first on the whole observation the model was trained on), the activation between
-    them and whether its output is squashed (SAC, TQC: SAC's actor) rather than clipped (PPO)."""
+    them and whether its output is squashed (SAC; TQC's actor is built as SAC's) rather than
+    clipped (PPO)."""
     import torch.nn as nn
-    from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.torch_layers import FlattenExtractor
+
+    tqc = getattr(sys.modules.get("sb3_contrib"), "TQC", None)  # imported wherever a TQC model is
 
     if isinstance(model, PPO):
         policy = model.policy
         extractor, hidden = policy.pi_features_extractor, policy.mlp_extractor.policy_net
         head, squash = policy.action_net, False
-    elif isinstance(model, (SAC, TQC)):
+    elif isinstance(model, SAC) or (tqc is not None and isinstance(model, tqc)):
         actor = model.actor
         extractor, hidden, head, squash = actor.features_extractor, actor.latent_pi, actor.mu, True
     else:

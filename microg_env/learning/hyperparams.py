@@ -24,12 +24,14 @@ from microg_env import validate
 from microg_env.files import read_yaml
 from microg_env.validate import shown
 
-#: Algorithms ``microg train`` runs (stable-baselines3's).
+#: Algorithms ``microg train`` runs (stable-baselines3's PPO and SAC, sb3-contrib's TQC).
 ALGORITHMS = ("ppo", "sac", "tqc")
 #: Algorithm arguments microg train sets itself (from its options), refused in a file.
 SET_BY_TRAIN = ("device", "seed", "verbose", "tensorboard_log", "env", "policy")
 #: Algorithm arguments that count something, each a positive integer.
 COUNT_KEYS = ("n_steps", "batch_size", "n_epochs", "buffer_size")
+#: TQC's quantiles per critic network unless policy_kwargs give n_quantiles (sb3-contrib's default).
+TQC_QUANTILES = 25
 #: Most environments a run steps (the CLI's --n-envs cap: rigs of one batch).
 MAX_ENVS = 256
 #: The zoo's keys that are not the algorithm's keyword arguments.
@@ -139,6 +141,11 @@ def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
             )
     if "policy_kwargs" in algo_kwargs:
         algo_kwargs["policy_kwargs"] = _policy_kwargs(algo_kwargs["policy_kwargs"], where)
+    if "top_quantiles_to_drop_per_net" in algo_kwargs:  # TQC's: the critic must keep a quantile
+        quantiles = (algo_kwargs.get("policy_kwargs") or {}).get("n_quantiles", TQC_QUANTILES)
+        name = f"{where}.top_quantiles_to_drop_per_net"
+        dropped = algo_kwargs["top_quantiles_to_drop_per_net"]
+        algo_kwargs["top_quantiles_to_drop_per_net"] = validate.integer(name, dropped, 0, int(quantiles) - 1)
     if "train_freq" in algo_kwargs and isinstance(algo_kwargs["train_freq"], list):
         algo_kwargs["train_freq"] = tuple(algo_kwargs["train_freq"])
     for key in SCHEDULE_KEYS:

@@ -280,10 +280,20 @@ def test_the_descent_term_scores_the_velocity_error_against_the_ideal_descent():
     np.testing.assert_allclose(rewards[1:], (1 - weight) * channel("reward_x")[1:] + weight * score[1:], rtol=1e-12)
 
 
-@pytest.mark.parametrize("weight", [-0.1, 1.5, "half"])
-def test_a_bad_descent_weight_is_named(weight):
-    with pytest.raises(ValueError, match="reward_descent_weight"):
-        MicroGravityLandingEnv(reward_descent_weight=weight)
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("reward_descent_weight", -0.1),
+        ("reward_descent_weight", 1.5),
+        ("reward_descent_weight", "half"),
+        ("reward_descent_scale_m_s", 0.0),
+        ("reward_descent_scale_m_s", math.inf),
+        ("reward_descent_scale_m_s", math.nan),
+    ],
+)
+def test_a_bad_descent_term_is_named(field, value):
+    with pytest.raises(ValueError, match=field):
+        MicroGravityLandingEnv(**{field: value})
 
 
 @pytest.mark.parametrize("name", ["feedforward", "adaptive", "adaptive-dither", "oracle"])

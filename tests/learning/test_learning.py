@@ -84,6 +84,26 @@ def test_bad_entries_are_named(tmp_path, entry, message):
         hp.load("ppo", ENV_ID, path)
 
 
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ("top_quantiles_to_drop_per_net: 25", r"top_quantiles_to_drop_per_net must be .*\[0, 24\]"),  # none kept
+        ("top_quantiles_to_drop_per_net: -1", "top_quantiles_to_drop_per_net"),
+        ("top_quantiles_to_drop_per_net: 2.5", "top_quantiles_to_drop_per_net"),
+        (
+            'top_quantiles_to_drop_per_net: 5\n  policy_kwargs: "dict(n_quantiles=5)"',
+            r"top_quantiles_to_drop_per_net must be .*\[0, 4\]",
+        ),
+    ],
+)
+def test_a_tqc_critic_that_would_keep_no_quantile_is_refused_before_a_run(tmp_path, entry, message):
+    """TQC checks none of these itself: they failed at the first gradient step, 5000 steps in."""
+    path = tmp_path / "tqc.yml"
+    path.write_text(f"{ENV_ID}:\n  {entry}\n")
+    with pytest.raises(ValueError, match=message):
+        hp.load("tqc", ENV_ID, path)
+
+
 def test_a_missing_entry_lists_the_entries(tmp_path):
     path = tmp_path / "ppo.yml"
     path.write_text("Other-v0:\n  n_envs: 1\n")
@@ -223,6 +243,8 @@ def _tiny_hyperparams(tmp_path: Path, algo: str) -> Path:
     entry |= {"n_envs": 2, "policy_kwargs": "dict(net_arch=[16, 16])"}
     entry |= {"n_steps": 64, "batch_size": 64, "n_epochs": 2} if algo == "ppo" else {}
     entry |= {"learning_starts": 50, "buffer_size": 5000, "batch_size": 32} if algo != "ppo" else {}
+    if algo == "tqc":  # not the defaults (25, 2), so a test sees the file's values reach the critic
+        entry |= {"policy_kwargs": "dict(net_arch=[16, 16], n_quantiles=7)", "top_quantiles_to_drop_per_net": 1}
     path = tmp_path / f"{algo}.yml"
     path.write_text(yaml.safe_dump({ENV_ID: entry}))
     return path
@@ -342,25 +364,27 @@ def test_tqc_trains_and_ships_a_policy_the_controllers_run(tmp_path):
     card = json.loads((folder / "policy" / "policy.json").read_text())
     assert card["algo"] == "tqc"
     model = TQC.load(folder / "policy" / "model.zip", device="cpu")
-    assert model.critic.n_quantiles == 25  # the packaged recipe's critic, not SAC's
+    assert model.critic.n_quantiles == 7  # the file's critic
+    assert model.top_quantiles_to_drop_per_net == 1
     exported = make_controller(str(folder / "policy"), 1e-3).policy
     observations = np.random.default_rng(0).normal(0.0, 1.0, (50, 10)).astype(np.float32)
     theirs = model.predict(exported.normalize(observations), deterministic=True)[0]
     np.testing.assert_allclose([exported.predict(o)[0] for o in observations], theirs, atol=2e-6)
 
 
+@pytest.mark.parametrize("algo", ["sac", "tqc"])
 @pytest.mark.slow
-def test_sac_resumes_with_its_replay_buffer(tmp_path):
-    from stable_baselines3 import SAC
+def test_an_off_policy_run_resumes_with_its_replay_buffer(tmp_path, algo):
+    from microg_env.learning.train import algorithm
 
-    folder = train(_settings(tmp_path, "sac", 128))
+    folder = train(_settings(tmp_path, algo, 128))
     latest = json.loads((folder / "checkpoints" / "latest.json").read_text())
     buffer = folder / "checkpoints" / latest["replay_buffer"]
     assert buffer.is_file()
-    train(_settings(tmp_path, "sac", 192), resume_folder=folder)
+    train(_settings(tmp_path, algo, 192), resume_folder=folder)
     latest = json.loads((folder / "checkpoints" / "latest.json").read_text())
     assert latest["timesteps"] == 192
-    model = SAC.load(folder / "checkpoints" / latest["model"], device="cpu")
+    model = algorithm(algo).load(folder / "checkpoints" / latest["model"], device="cpu")
     model.load_replay_buffer(folder / "checkpoints" / latest["replay_buffer"])
     assert model.replay_buffer.size() == 192 // 2  # every step of both sessions, per environment
     assert not buffer.exists()  # only the latest buffer is kept

@@ -89,7 +89,8 @@ def _both_loops(settings: dict, controller: str = "pid", seed: int = 0, pid=None
 
 def _same_state(fast_env, slow_env, fast_pid, slow_pid):
     """The environments, their generators and the PIDs are where each other's are, to the last bit."""
-    for field in ("observation", "steps", "previous_action", "placed_load_kg", "reward_x", "last_readings"):
+    fields = ("observation", "steps", "previous_action", "placed_load_kg", "reward_x", "reward", "descent")
+    for field in (*fields, "last_readings"):
         np.testing.assert_array_equal(getattr(fast_env.core, field), getattr(slow_env.core, field), err_msg=field)
     for field in ("qpos", "qvel", "act", "ctrl"):
         np.testing.assert_array_equal(getattr(fast_env.data, field), getattr(slow_env.data, field), err_msg=field)
@@ -105,6 +106,7 @@ def _same_state(fast_env, slow_env, fast_pid, slow_pid):
     [
         ({"condition": 1, "scenario": replace(CONDITIONS[1], duration_s=2.5)}, "pid", 0),  # noise blocks run out
         ({"condition": 3}, "pid-dom", 3),  # weights placed in flight, a period finished outside the loop
+        ({"condition": 3, "reward_descent_weight": 0.5}, "pid-dom", 3),  # the descent term, two windows
         ({"scenario_sampler": "training", "domain_randomization": "full"}, "pid", 7),  # a drawn plant
         ({"condition": 2, "imperfections": Imperfections.none()}, "pid", 1),  # the ideal drive, exact sensors
         ({"condition": 2, "sensor_set": "paper", "control_period_s": 5e-4}, "pid", 2),  # sensors missing, 5 steps
