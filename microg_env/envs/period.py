@@ -179,9 +179,10 @@ def score_descent(descent, time_s, velocity_m_s, pad_force_n):
     foot has touched the pad].
 
     The error is v(t) - v(t0) - a_ideal (t - t0) from the window's start t0 (``SETTLE_S`` after the
-    stage's weight is placed) on: the stage's compensation error a / a_ideal - 1 integrated, so a
-    constant bias grows steadily while the vibration that dominates an instant's acceleration
-    averages out. The window closes for good at the first pad contact (``pad_force_n`` > 0)."""
+    stage's weight is placed) on: the acceleration error a - a_ideal (the compensation error
+    a / a_ideal - 1 times a_ideal) integrated, so a constant bias grows steadily while the
+    vibration that dominates an instant's acceleration averages out. The window closes for good
+    at the first pad contact (``pad_force_n`` > 0)."""
     if pad_force_n > 0.0:
         descent[0], descent[4] = np.inf, 1.0
     error = 0.0
