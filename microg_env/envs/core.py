@@ -77,6 +77,9 @@ TASK_ATTRIBUTES = (
     "reset_noise_scale",
     "xml_file",
 )
+#: A rig's descent state (period.score_descent: window start s, velocity there, ideal acceleration,
+#: last velocity error, touched) before its first weight is placed: no window.
+NO_DESCENT = (np.inf, np.nan, 0.0, 0.0, 0.0)
 #: Why an episode terminated, by code (0: it did not).
 TERMINATION_REASONS = (None, "guide_stroke_limit", "screw_stroke_limit", "pad_bottomed_out")
 _REASONS = np.array(TERMINATION_REASONS, dtype=object)  # indexed by the codes: new object arrays
@@ -223,9 +226,7 @@ class LandingCore:
         self.fresh = np.ones(n, dtype=bool)  # no previous reading yet: rates are 0
         self.reward_x = np.zeros(n)  # the x term of the last control period's reward
         self.reward = np.zeros(n)  # the last control period's reward (period.observe)
-        # each rig's descent window (period.score_descent): start s, velocity there, ideal
-        # acceleration, last velocity error, touched
-        self.descent = np.tile((np.inf, np.nan, 0.0, 0.0, 0.0), (n, 1))  # as reset() leaves it
+        self.descent = np.tile(NO_DESCENT, (n, 1))  # each rig's descent window (period.score_descent)
         self._positions = np.arange(n)
         self._period_span_s = self.physics_step_s * self.frame_skip  # the drive's reference ramps this long
         self._no_field = np.zeros((0, 0, 0))  # the ideal drive has no slew limiter to set
@@ -335,7 +336,7 @@ class LandingCore:
         if self.residual_stage_m is not None:
             self.residual_stage_m[ids] = 0.0
         self.fresh[ids] = True
-        self.descent[ids] = (np.inf, np.nan, 0.0, 0.0, 0.0)  # no window until the first weight is placed
+        self.descent[ids] = NO_DESCENT
         self._noise.restart(ids)
         if self.base is not None:
             self.base.reset(ids)
