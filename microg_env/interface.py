@@ -71,6 +71,11 @@ RESIDUAL_HIGHPASS_ORDERS = (1, 2)  # the lowest and highest
 #: which nothing of the residual would pass that the drive follows).
 RESIDUAL_HIGHPASS_RANGE_HZ = (0.0, 100.0)
 
+#: The foot heights at or below which a gated residual acts (the environment's
+#: ``residual_gate_m``), m: from the pad's surface (the contact alone) to 0.1 m, above every
+#: schedule's start (the gate then never closes before the pad).
+RESIDUAL_GATE_RANGE_M = (0.0, 0.1)
+
 
 def hidden_entries(names: object) -> tuple[str, ...]:
     """Observation entries an agent is shown as 0 (``hidden_observations``): distinct names of
@@ -132,6 +137,23 @@ def residual_setpoint(
     last_stage_m[ids] = stage
     last_setpoint_m[ids] = setpoint
     return setpoint
+
+
+def residual_gate(gate_m: object) -> float | None:
+    """A residual's gate height (:data:`RESIDUAL_GATE_RANGE_M`; None: no gate), or a FieldError
+    naming it."""
+    return None if gate_m is None else validate.between("residual_gate_m", gate_m, *RESIDUAL_GATE_RANGE_M, "m")
+
+
+def gated_actions(actions: np.ndarray, observations: np.ndarray, gate_m: float | None) -> np.ndarray:
+    """Residual ``actions`` as a gate at foot height ``gate_m`` passes them: each rig's action while
+    its foot reads at most ``gate_m`` above the pad (``observations``' height entry: the servo
+    encoder and the grating ruler, a reading of the paper's rig as well), else 0, so that the base
+    controller alone flies the descent above it; ``actions`` themselves without a gate."""
+    if gate_m is None:
+        return actions
+    heights_m = observations[:, OBSERVATION_INDEX["height"]] * OBSERVATION_SCALES["height"]
+    return np.where(heights_m <= gate_m, actions, 0.0)
 
 
 def action_space() -> spaces.Box:

@@ -36,9 +36,11 @@ from microg_env.interface import (
     OBSERVATION_SCALES,
     RESIDUAL_HIGHPASS_RANGE_HZ,
     RESIDUAL_LIMIT_M,
+    gated_actions,
     hidden_entries,
     highpass_gain,
     highpass_order,
+    residual_gate,
     residual_setpoint,
 )
 from microg_env.params import CONTROL_PERIOD_S
@@ -153,7 +155,9 @@ class PolicyController(VectorController):
     the drive every period (the residual mode of ``MicroGravityLanding-v1``); without one the action
     is the speed command, held. With ``residual_highpass_hz`` the setpoint is the action high-passed
     (:func:`~microg_env.interface.residual_setpoint`, ``residual_highpass_order`` stages), and the
-    ``hidden_observations`` read 0 to the policy, as the environment's. An all-zero residual is
+    ``hidden_observations`` read 0 to the policy, and with ``residual_gate_m`` the action acts only
+    while the foot reads at most that high (:func:`~microg_env.interface.gated_actions`), as the
+    environment's. An all-zero residual is
     exactly the base controller. Many rigs' observations go through the policy in one batch.
     """
 
@@ -177,6 +181,7 @@ class PolicyController(VectorController):
         control_period_s: float = CONTROL_PERIOD_S,
         residual_highpass_order: int = 1,
         hidden_observations: tuple[str, ...] | list[str] = (),
+        residual_gate_m: float | None = None,
     ) -> None:
         super().__init__(*(() if base is None else (base,)))
         self.policy = policy
@@ -188,6 +193,7 @@ class PolicyController(VectorController):
         self._residual_gain = highpass_gain(highpass_hz, self.decision_period * control_period_s)
         self._second_stage = highpass_order(residual_highpass_order) == 2
         self._hidden = [OBSERVATION_INDEX[name] for name in hidden_entries(hidden_observations)]
+        self.residual_gate_m = residual_gate(residual_gate_m)
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         due = np.empty(ids.size, dtype=np.bool_)
@@ -203,7 +209,7 @@ class PolicyController(VectorController):
             self._action[acting] = np.clip(np.asarray(action, dtype=np.float32).reshape(-1), -1.0, 1.0)
             if self.base is not None:
                 self.base.setpoint_m[acting] = residual_setpoint(
-                    self._action[acting],
+                    gated_actions(self._action[acting], rows[due], self.residual_gate_m),
                     acting,
                     self.residual_limit_m,
                     self._residual_gain,

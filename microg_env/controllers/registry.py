@@ -27,6 +27,7 @@ from microg_env.interface import (
     RESIDUAL_LIMIT_M,
     hidden_entries,
     highpass_order,
+    residual_gate,
 )
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, RigParams
 from microg_env.validate import FieldError
@@ -126,6 +127,7 @@ ACTING_KEYS = (
     "residual_limit_m",
     "residual_highpass_hz",
     "residual_highpass_order",
+    "residual_gate_m",
     "hidden_observations",
 )
 
@@ -142,6 +144,7 @@ def _check_deployment(env: dict[str, Any]) -> None:
     validate.positive("residual_limit_m", env.get("residual_limit_m", RESIDUAL_LIMIT_M), "m", 1e-3)
     validate.between("residual_highpass_hz", env.get("residual_highpass_hz", 0.0), *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
     highpass_order(env.get("residual_highpass_order", 1))
+    residual_gate(env.get("residual_gate_m"))
     hidden_entries(env.get("hidden_observations", ()))
 
 
@@ -189,4 +192,5 @@ def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyContro
         control_period_s=period,
         residual_highpass_order=env_kwargs.get("residual_highpass_order", 1),
         hidden_observations=env_kwargs.get("hidden_observations", ()),
+        residual_gate_m=env_kwargs.get("residual_gate_m"),
     )

@@ -34,6 +34,7 @@ from microg_env.interface import (
     OBSERVATION_INDEX,
     SCALES,
     SENSOR_SETS,
+    gated_actions,
     highpass_gain,
     residual_setpoint,
 )
@@ -71,6 +72,7 @@ TASK_ATTRIBUTES = (
     "residual_limit_m",
     "residual_highpass_hz",
     "residual_highpass_order",
+    "residual_gate_m",
     "reward_scale_m",
     "reward_descent_weight",
     "reward_descent_scale_m_s",
@@ -381,7 +383,7 @@ class LandingCore:
         """
         if self.base is not None:
             self.base.setpoint_m[ids] = residual_setpoint(
-                actions,
+                gated_actions(actions, self.observation[ids], self.residual_gate_m),
                 ids,
                 self.residual_limit_m,
                 self._residual_gain,

@@ -54,7 +54,10 @@ class MicroGravityLandingEnv(gym.Env):
       drive every control period from the latest observation. An action of 0 is the base controller.
       With ``residual_highpass_hz`` the setpoint is the action high-passed
       (:func:`~microg_env.interface.residual_setpoint`): a held action decays to 0, and with
-      ``residual_highpass_order=2`` a steadily changing one as well.
+      ``residual_highpass_order=2`` a steadily changing one as well. With ``residual_gate_m`` the
+      action acts only at decisions whose foot reading (encoder + ruler) is at most that high
+      above the pad, else it is taken as 0 (:func:`~microg_env.interface.gated_actions`): at 0 m
+      the base controller alone flies every free fall and the residual shapes the collision.
 
     Out-of-range values are clipped to [-1, 1]; NaN, infinite, non-numeric or wrongly shaped
     actions raise ``ValueError``. The drive interpolates its position reference at the commanded
@@ -122,6 +125,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``residual_limit_m`` | the setpoint an action of +-1 stands for, m |
     | ``residual_highpass_hz`` | corner of the residual's high-pass, Hz (0: none) |
     | ``residual_highpass_order`` | its first-order stages in cascade: 1 or 2 (none without a corner) |
+    | ``residual_gate_m`` | foot height at or below which the residual acts, m (None: always) |
     | ``imperfections`` | which non-ideal effects are on (or their flags as a dict) |
     | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
     | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force and accelerometer read 0) |

@@ -24,6 +24,7 @@ from microg_env.interface import (
     SENSOR_SETS,
     hidden_entries,
     highpass_order,
+    residual_gate,
 )
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import Scenario, ScenarioSampler
@@ -50,6 +51,7 @@ class TaskSettings:
     residual_limit_m: float = RESIDUAL_LIMIT_M
     residual_highpass_hz: float = 0.0
     residual_highpass_order: int = 1
+    residual_gate_m: float | None = None
     imperfections: Imperfections | Mapping | None = None
     domain_randomization: DomainRandomization | Mapping | bool | str | None = None
     sensor_set: str = "extended"
@@ -87,6 +89,7 @@ class TaskSettings:
         corner = validate.between("residual_highpass_hz", self.residual_highpass_hz, *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
         put("residual_highpass_hz", corner)
         put("residual_highpass_order", highpass_order(self.residual_highpass_order))
+        put("residual_gate_m", residual_gate(self.residual_gate_m))
         put("reward_scale_m", validate.between("reward_scale_m", self.reward_scale_m, 1e-12, 1e-3, "m"))
         put("reward_descent_weight", validate.between("reward_descent_weight", self.reward_descent_weight, 0.0, 1.0))
         scale = validate.between("reward_descent_scale_m_s", self.reward_descent_scale_m_s, 1e-12, 1e-3, "m/s")

@@ -670,6 +670,8 @@ def _policy_cases():
                 ("residual_limit_m", "1.5"),
                 ("residual_highpass_hz", "1.5"),
                 ("residual_highpass_hz", "0"),  # 0 Hz: no high-pass, a valid corner
+                ("residual_gate_m", "0"),  # the pad's surface: a residual gated to the contact
+                ("residual_gate_m", "null"),  # no gate
             }:
                 continue
             bad = json.loads(json.dumps(card))

@@ -23,7 +23,7 @@ from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.envs.settings import TaskSettings
 from microg_env.envs.vector import MicroGravityLandingVectorEnv
 from microg_env.imperfections import DomainRandomization
-from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES, Readings, highpass_gain
+from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES, Readings, gated_actions, highpass_gain
 from microg_env.params import RigParams
 from microg_env.sim.model import drive_inertia_kg_m2
 
@@ -384,6 +384,46 @@ def test_a_second_order_high_pass_lets_neither_a_held_nor_a_ramping_action_hold_
     assert abs(late[2]) < 0.01 * late[1]
 
 
+def test_a_gate_passes_each_rigs_action_while_its_foot_reads_at_or_below_the_gate():
+    observations = np.zeros((4, len(OBSERVATION_SCALES)), dtype=np.float32)
+    observations[:, OBSERVATION_INDEX["height"]] = np.array([0.02, 0.0, -0.01, 0.0101]) / OBSERVATION_SCALES["height"]
+    actions = np.array([0.5, -0.25, 1.0, 0.75])
+    np.testing.assert_array_equal(gated_actions(actions, observations, 0.0), [0.0, -0.25, 1.0, 0.0])
+    np.testing.assert_array_equal(gated_actions(actions, observations, 0.03), [0.5, -0.25, 1.0, 0.75])
+    np.testing.assert_array_equal(gated_actions(actions, observations, 0.015), [0.0, -0.25, 1.0, 0.75])
+    assert gated_actions(actions, observations, None) is actions  # no gate
+
+
+def test_a_residual_gated_to_the_contact_leaves_the_free_fall_to_the_base_controller():
+    """``residual_gate_m=0``: until the first decision whose foot reading (encoder + ruler) is at
+    or below the pad, a held action of 1 moves nothing, and the episode is the zero action's bit for
+    bit; at that decision the action passes into the two-stage high-pass, y = a^2 3 um."""
+    scenario = Scenario("touch", (LoadStep(1.5),), descent_height_m=0.002, duration_s=0.6)
+    kwargs = {
+        "scenario": scenario, "action_mode": "residual", "base_controller": "adaptive-dither", "decision_period": 5,
+        "residual_limit_m": 3e-6, "residual_highpass_hz": 2.0, "residual_highpass_order": 2, "residual_gate_m": 0.0,
+    }  # fmt: skip
+    runs = {}
+    for action in (0.0, 1.0):
+        env = MicroGravityLandingEnv(**kwargs)
+        observation, _ = env.reset(seed=3)
+        heights, xs, setpoints = [], [], []
+        for _ in range(110):
+            heights.append(float(observation[OBSERVATION_INDEX["height"]]) * OBSERVATION_SCALES["height"])
+            observation, _, _, _, info = env.step(np.array([action], dtype=np.float32))
+            xs.append(info["x_m"])
+            setpoints.append(info["setpoint_m"])
+        runs[action] = np.array(heights), np.array(xs), np.array(setpoints)
+    heights, xs, setpoints = runs[1.0]
+    opened = int(np.argmax(heights <= 0.0))
+    assert 20 < opened < 100  # the foot reached the pad inside the run
+    np.testing.assert_array_equal(xs[:opened], runs[0.0][1][:opened])
+    np.testing.assert_array_equal(heights[: opened + 1], runs[0.0][0][: opened + 1])
+    assert not setpoints[:opened].any()
+    assert setpoints[opened] == pytest.approx(highpass_gain(2.0, 5e-3) ** 2 * 3e-6, rel=1e-12)
+    assert abs(xs[opened + 2] - runs[0.0][1][opened + 2]) > 1e-8  # and it moves x from there
+
+
 def test_the_decision_period_holds_the_action_and_steps_the_control_periods():
     env = MicroGravityLandingEnv(condition=1, decision_period=5, action_mode="residual", base_controller="pid")
     _, info = env.reset(seed=0)
@@ -498,6 +538,11 @@ def test_bad_actions_raise(action):
         ({"residual_highpass_order": 3}, "residual_highpass_order"),
         ({"residual_highpass_order": 2.0}, "residual_highpass_order"),
         ({"residual_highpass_order": True}, "residual_highpass_order"),
+        ({"residual_gate_m": -1e-3}, "residual_gate_m"),
+        ({"residual_gate_m": 0.5}, "residual_gate_m"),
+        ({"residual_gate_m": "0"}, "residual_gate_m"),
+        ({"residual_gate_m": True}, "residual_gate_m"),
+        ({"residual_gate_m": float("nan")}, "residual_gate_m"),
         ({"hidden_observations": "height"}, "hidden_observations must be a list"),
         ({"hidden_observations": ["heights"]}, r"hidden_observations\[0\] must be one of .*got 'heights'"),
         ({"hidden_observations": ["x", ["x"]]}, r"hidden_observations\[1\] must be one of"),

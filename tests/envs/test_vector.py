@@ -25,6 +25,8 @@ from microg_env.scenarios import LoadStep, Scenario, condition
 ENV_ID = "microg_env:MicroGravityLanding-v1"
 #: Short episodes, so that autoresets come within a test: 40 control periods.
 SHORT = Scenario("short", (LoadStep(0.49), LoadStep(0.3, height_m=0.0898)), descent_height_m=0.09, duration_s=0.04)
+#: A touchdown within 0.45 s (1.5 kg from 2 mm: about 0.4 s), inside 150 steps of 3 control periods.
+TOUCH = Scenario("touch", (LoadStep(1.5),), descent_height_m=0.002, duration_s=0.6)
 
 
 def _rollout(env, actions, seed):
@@ -54,8 +56,22 @@ def _rollout(env, actions, seed):
             "reward_descent_weight": 0.5,
             "domain_randomization": True,
         },
+        {  # each rig's gate opens at its own touchdown (the plants differ)
+            "scenario": TOUCH,
+            "action_mode": "residual",
+            "base_controller": "adaptive-dither",
+            "decision_period": 3,
+            "residual_gate_m": 0.0,
+            "domain_randomization": True,
+        },
     ],
-    ids=["speed-randomised", "speed-randomised-drive", "residual-feedforward", "residual-descent-reward"],
+    ids=[
+        "speed-randomised",
+        "speed-randomised-drive",
+        "residual-feedforward",
+        "residual-descent-reward",
+        "residual-gated",
+    ],
 )
 @pytest.mark.slow
 def test_each_rig_runs_exactly_the_single_envs_episode(kwargs):
@@ -70,6 +86,8 @@ def test_each_rig_runs_exactly_the_single_envs_episode(kwargs):
         for key, values in single.items():
             np.testing.assert_array_equal(batched[key][:, i], values, err_msg=f"rig {i} {key}")
     assert np.ptp(batched["x"][-1]) > 0  # the rigs differ (noise, drift, plants): the test can fail
+    if "residual_gate_m" in kwargs:  # every rig's gate opened inside the run, none in its first 0.3 s
+        assert (batched["setpoint"] != 0).any(axis=0).all() and not batched["setpoint"][:100].any()
 
 
 def test_a_vector_env_of_one_rig_runs_on_the_batch_and_equals_the_single_env():
