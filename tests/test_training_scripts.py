@@ -19,7 +19,7 @@ TRAINING = Path(__file__).resolve().parents[1] / "training"
         ("tune_adaptive", ["--dither", "60", "--seeds", "1", "--duration", "0.3"], "dither 60 nm, 10 ms: J = "),
         ("dither_probe", ["--amplitudes", "0.05,sac", "--seeds", "1", "--workers", "1"], "| sac | "),
         ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
-        ("returns_table", ["--seeds", "1", "--scenarios", "training"], "| zero residual (adaptive) | "),
+        ("returns_table", ["--seeds", "1", "--scenarios", "training"], "| zero residual (adaptive-dither) | "),
         (
             "recipe_probe",
             ["--stack", "2", "--timesteps", "256", "--seeds", "2", "--scenarios", "training"],

@@ -1,10 +1,11 @@
-"""The returns table of the learning task (MicroGravityLanding-Residual-v4 to -v1): what each controller earns.
+"""The returns table of the learning task (MicroGravityLanding-Residual-v5 to -v1): what each controller earns.
 
 Every controller runs in the residual environment with the id's defaults (a residual x setpoint on
 `adaptive`, held 5 control periods: +-1 um in v1, +-3 um high-passed at 2 Hz in v2, twice in v3,
-the absolute positions hidden from the agent in v4; plants and drives drawn by
+the absolute positions hidden from the agent in v4; v5 on `adaptive-dither`, gated to the contact,
+the agent reading the paper's sensors; plants and drives drawn by
 ``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero
-residual`` (`adaptive` alone), the other classical controllers as the base with a zero residual
+residual`` (the id's base alone), the other classical controllers as the base with a zero residual
 (an all-zero residual is exactly its base) and learned policies (shipped names or policy folders
 trained on this task). A
 return is the episode's undiscounted sum of rewards; the table gives mean ± std over seeds from
@@ -37,16 +38,9 @@ from microg_env.experiments.comparison import TEST_SEED
 from microg_env.scenarios import comparison_scenarios
 
 #: The learning task's ids, the newest first (the default).
-ENV_IDS = tuple(f"MicroGravityLanding-Residual-v{version}" for version in (4, 3, 2, 1))
-#: The base controllers run with a zero residual, by the row's name.
-BASE = gym.spec(ENV_IDS[0]).kwargs["base_controller"]  # the ids' own, under a zero residual
-BASES = {
-    "pid": "pid",
-    "feedforward": "feedforward",
-    f"zero residual ({BASE})": BASE,
-    "adaptive-dither": "adaptive-dither",
-    "oracle": "oracle",
-}
+ENV_IDS = tuple(f"MicroGravityLanding-Residual-v{version}" for version in (5, 4, 3, 2, 1))
+#: The classical controllers run as the base with a zero residual, a row each.
+CLASSICAL = ("pid", "feedforward", "adaptive", "adaptive-dither", "oracle")
 SCENARIOS = ("training", *comparison_scenarios())
 
 
@@ -61,7 +55,14 @@ def episode_return(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], seed: 
     return total
 
 
-def make_env(env_id: str, scenario: str, base: str = BASE) -> gym.Env:
+def base_rows(env_id: str) -> dict[str, str]:
+    """The classical controllers' rows of ``env_id``'s table, by name: the id's own base controller
+    is its ``zero residual`` row."""
+    own = gym.spec(env_id).kwargs["base_controller"]
+    return {(f"zero residual ({name})" if name == own else name): name for name in CLASSICAL}
+
+
+def make_env(env_id: str, scenario: str, base: str) -> gym.Env:
     """The id's environment on ``scenario`` ("training": its own draws) with ``base`` under the residual."""
     if scenario == "training":
         return gym.make(env_id, base_controller=base)
@@ -88,14 +89,15 @@ def _plain(value: object) -> object:
 
 
 def returns(env_id: str, row: str, scenario: str, seeds: int) -> list[float]:
-    """The returns of controller ``row`` (a :data:`BASES` name, "random" or a policy) on ``scenario``."""
-    env = make_env(env_id, scenario, BASES.get(row, BASE))
+    """The returns of controller ``row`` (a :func:`base_rows` name, "random" or a policy) on ``scenario``."""
+    bases = base_rows(env_id)
+    env = make_env(env_id, scenario, bases.get(row, gym.spec(env_id).kwargs["base_controller"]))
     values = []
     for seed in range(TEST_SEED, TEST_SEED + seeds):
         if row == "random":
             rng = np.random.default_rng(seed)
             act = lambda obs, rng=rng: rng.uniform(-1.0, 1.0, size=1).astype(np.float32)  # noqa: E731
-        elif row in BASES:
+        elif row in bases:
             act = lambda obs: np.zeros(1, dtype=np.float32)  # noqa: E731
         else:
             act = policy_actor(env_id, row)
@@ -118,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
             policy_actor(args.env, name)
         except ValueError as error:
             parser.error(f"--policies: {error}")
-    rows = ["random", *BASES, *policies]
+    rows = ["random", *base_rows(args.env), *policies]
     print("| controller | " + " | ".join(f"`{s}`" for s in scenarios) + " |")
     print("|---" * (len(scenarios) + 1) + "|")
     for row in rows:

@@ -59,6 +59,7 @@ ENV_IDS = (
     "MicroGravityLanding-Residual-v2",
     "MicroGravityLanding-Residual-v3",
     "MicroGravityLanding-Residual-v4",
+    "MicroGravityLanding-Residual-v5",
 )
 #: Folders and files of a run.
 CHECKPOINTS, LATEST, POLICY, EVALUATIONS, LOG = "checkpoints", "latest.json", "policy", "evaluations.json", "train.log"

@@ -20,7 +20,7 @@ from microg_env.analysis.summary import control_cost
 from microg_env.controllers import MLPPolicy, make_controller
 from microg_env.controllers.registry import deployed_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
-from microg_env.interface import OBSERVATION_INDEX
+from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import export_policy, write_policy_folder
 from microg_env.learning.train import TrainingInterrupted, TrainSettings, resolve, resumed_run, session_seed, train
@@ -159,30 +159,42 @@ def _random_policy(seed: int) -> MLPPolicy:
 
 
 @pytest.mark.parametrize(
-    ("highpass_hz", "order", "hidden"),
-    [(0.0, 1, ()), (2.0, 1, ()), (2.0, 2, ()), (2.0, 2, ("support_position", "height"))],
+    ("highpass_hz", "order", "hidden", "gate"),
+    [
+        (0.0, 1, (), None),
+        (2.0, 1, (), None),
+        (2.0, 2, (), None),
+        (2.0, 2, ("support_position", "height"), None),
+        (2.0, 2, (), 0.053),  # condition 3 starts at 55 mm: the gate opens after about 2.2 s
+    ],
 )
-def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpass_hz, order, hidden):
+def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpass_hz, order, hidden, gate):
     """The deployed composition (policy + base, decision period, rebuilt observation, the
-    residual's high-pass, the entries the policy is not shown) is the training environment's, bit
-    for bit, for a policy that moves the setpoint every decision; the setpoints are the actions, or
-    at 2 Hz the actions through y_n = a (y_(n-1) + (u_n - u_(n-1)) 1 um) with a = tau / (tau + 5 ms),
-    tau = 1 / (2 pi 2 Hz), once or twice in cascade."""
+    residual's high-pass, the entries the policy is not shown, its gate) is the training
+    environment's, bit for bit, for a policy that moves the setpoint every decision; the setpoints
+    are the actions (0 while a gate reads the foot above it), or at 2 Hz the actions through
+    y_n = a (y_(n-1) + (u_n - u_(n-1)) 1 um) with a = tau / (tau + 5 ms), tau = 1 / (2 pi 2 Hz),
+    once or twice in cascade."""
     policy = _random_policy(3)
     highpass = {"residual_highpass_hz": highpass_hz, "residual_highpass_order": order}
     if hidden:
         highpass["hidden_observations"] = hidden
+    if gate is not None:
+        highpass["residual_gate_m"] = gate
     residual_env = MicroGravityLandingEnv(condition=3, **RESIDUAL, **highpass)
     observation, info = residual_env.reset(seed=4)
     xs, commands, actions, setpoints = [], [], [], []
     for _ in range(600):  # 3 s
         assert all(observation[OBSERVATION_INDEX[name]] == 0.0 for name in hidden)
         action = policy.predict(observation)[0]
+        height_m = float(observation[OBSERVATION_INDEX["height"]]) * OBSERVATION_SCALES["height"]
         observation, _, _, _, info = residual_env.step(action)
         xs.append(info["x_m"])
         commands.append(info["command_m_s"])
-        actions.append(float(action[0]))
+        actions.append(float(action[0]) if gate is None or height_m <= gate else 0.0)
         setpoints.append(info["setpoint_m"])
+    if gate is not None:
+        assert 0.1 < np.mean(np.array(actions) == 0.0) < 0.9  # the gate was shut, then open
     controller = deployed_controller(policy, RESIDUAL | highpass)
     deployed = run_episode(MicroGravityLandingEnv(condition=3), controller, seed=4, duration_s=3.0)
     np.testing.assert_array_equal(deployed.x_m[5::5], np.array(xs))
@@ -796,6 +808,19 @@ RESIDUAL_IDS = {
         "residual_highpass_order": 2,
         "hidden_observations": ("support_position", "height"),
     },
+    "MicroGravityLanding-Residual-v5": {
+        "base_controller": "adaptive-dither",
+        "residual_limit_m": 3e-6,
+        "residual_highpass_hz": 2.0,
+        "residual_highpass_order": 2,
+        "residual_gate_m": 0.0,
+        "hidden_observations": ("support_position", "height", "lander_accel", "pad_force"),
+    },
+}
+NEWEST_RESIDUAL_ID = "MicroGravityLanding-Residual-v5"  # every packaged file has an entry for it
+#: Each version's reward_threshold: its zero residual's mean return (its base controller's).
+THRESHOLDS = dict.fromkeys(RESIDUAL_IDS, microg_env.REWARD_THRESHOLD) | {
+    NEWEST_RESIDUAL_ID: microg_env.GATED_REWARD_THRESHOLD
 }
 
 
@@ -805,41 +830,52 @@ def test_the_residual_task_is_registered_with_its_defaults_and_passes_check_env(
     from gymnasium.utils.env_checker import check_env
 
     spec = gym.spec(env_id)
-    assert spec.kwargs == RESIDUAL | RESIDUAL_IDS[env_id] | {
-        "base_controller": "adaptive",
-        "scenario_sampler": "training",
-        "domain_randomization": "full",
-    }
-    assert spec.reward_threshold == microg_env.REWARD_THRESHOLD > 0
+    assert (
+        spec.kwargs
+        == RESIDUAL
+        | {
+            "base_controller": "adaptive",
+            "scenario_sampler": "training",
+            "domain_randomization": "full",
+        }
+        | RESIDUAL_IDS[env_id]
+    )
+    assert spec.reward_threshold == THRESHOLDS[env_id] > 0
     check_env(gym.make(env_id).unwrapped, skip_render_check=True)
     # a run's settings are the id's defaults updated by the file's entry: the card says the whole task
-    assert hp.load("ppo", env_id).env_kwargs == spec.kwargs
+    for algo in ("ppo", "sac", "tqc") if env_id == NEWEST_RESIDUAL_ID else ("ppo",):
+        assert hp.load(algo, env_id).env_kwargs == spec.kwargs, algo
 
 
 def test_a_zero_action_is_the_base_controller_on_every_version_of_the_residual_task():
-    """The high-pass passes a zero residual as zero and the base controller reads every sensor
-    whatever the agent is shown, so every version's zero action is v1's, bit for bit (v4's agent
-    sees 0 in its hidden entries), and they share the zero residual's return as their
-    reward_threshold."""
+    """The high-pass and the gate pass a zero residual as zero and the base controller reads every
+    sensor whatever the agent is shown, so every version's zero action is v1's on the same base
+    controller, bit for bit (v4's and v5's agents see 0 in their hidden entries), and versions on
+    the same base share the zero residual's return as their reward_threshold."""
     import gymnasium as gym
 
-    runs = {}
-    for env_id in RESIDUAL_IDS:
-        env = gym.make(env_id)
+    def run(env: gym.Env) -> tuple[np.ndarray, list[float]]:
         observations, rewards = [env.reset(seed=7)[0]], []
         for _ in range(300):
             observation, reward, *_ = env.step(np.zeros(1, dtype=np.float32))
             observations.append(observation)
             rewards.append(reward)
-        runs[env_id] = (np.array(observations), rewards)
-    v1_observations, v1_rewards = runs[RESIDUAL_ID]
-    for env_id, (observations, rewards) in runs.items():
+        return np.array(observations), rewards
+
+    references = {}
+    for env_id in RESIDUAL_IDS:
+        base = gym.spec(env_id).kwargs["base_controller"]
+        if base not in references:
+            references[base] = run(gym.make(RESIDUAL_ID, base_controller=base))
+        observations, rewards = run(gym.make(env_id))
+        v1_observations, v1_rewards = references[base]
         assert rewards == v1_rewards, env_id
         hidden = [OBSERVATION_INDEX[name] for name in RESIDUAL_IDS[env_id].get("hidden_observations", ())]
         shown = v1_observations.copy()
         shown[:, hidden] = 0.0
         np.testing.assert_array_equal(observations, shown, err_msg=env_id)
-    assert v1_observations[:, OBSERVATION_INDEX["height"]].all()  # what v4 hides is there to hide
+        assert v1_observations[:, hidden].any(axis=0).all(), env_id  # what it hides is there to hide
+    assert set(references) == {"adaptive", "adaptive-dither"}
 
 
 @pytest.mark.parametrize("env_id", RESIDUAL_IDS)
