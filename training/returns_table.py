@@ -62,8 +62,10 @@ def base_rows(env_id: str) -> dict[str, str]:
     return {(f"zero residual ({name})" if name == own else name): name for name in CLASSICAL}
 
 
-def make_env(env_id: str, scenario: str, base: str) -> gym.Env:
-    """The id's environment on ``scenario`` ("training": its own draws) with ``base`` under the residual."""
+def make_env(env_id: str, scenario: str, base: str | None = None) -> gym.Env:
+    """The id's environment on ``scenario`` ("training": its own draws) with ``base`` (by default the
+    id's own) under the residual."""
+    base = gym.spec(env_id).kwargs["base_controller"] if base is None else base
     if scenario == "training":
         return gym.make(env_id, base_controller=base)
     return gym.make(env_id, base_controller=base, scenario_sampler=None, scenario=comparison_scenarios()[scenario])
@@ -91,7 +93,7 @@ def _plain(value: object) -> object:
 def returns(env_id: str, row: str, scenario: str, seeds: int) -> list[float]:
     """The returns of controller ``row`` (a :func:`base_rows` name, "random" or a policy) on ``scenario``."""
     bases = base_rows(env_id)
-    env = make_env(env_id, scenario, bases.get(row, gym.spec(env_id).kwargs["base_controller"]))
+    env = make_env(env_id, scenario, bases.get(row))
     values = []
     for seed in range(TEST_SEED, TEST_SEED + seeds):
         if row == "random":

@@ -814,7 +814,7 @@ RESIDUAL_IDS = {
         "residual_highpass_hz": 2.0,
         "residual_highpass_order": 2,
         "residual_gate_m": 0.0,
-        "hidden_observations": ("support_position", "height", "lander_accel", "pad_force"),
+        "hidden_observations": ("support_position", "lander_accel", "pad_force"),
     },
 }
 NEWEST_RESIDUAL_ID = "MicroGravityLanding-Residual-v5"  # every packaged file has an entry for it
