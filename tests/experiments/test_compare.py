@@ -12,8 +12,11 @@ from microg_env.cli import main
 from microg_env.controllers.registry import load_policy, policy_card, shipped_policy_folder
 from microg_env.experiments.comparison import QUANTITIES, TEST_SEED, compare
 from microg_env.experiments.comparison_report import COMPARISON_FILES, render_markdown, write
-from microg_env.interface import OBSERVATION_INDEX
+from microg_env.interface import OBSERVATION_INDEX, SENSOR_SETS
 from microg_env.learning.hyperparams import load as load_hyperparams
+
+#: The training seed of the shipped residual-sac-gated (docs/controllers.md: the best of five).
+GATED_SEED = 3
 
 
 @pytest.fixture(scope="module")
@@ -213,6 +216,31 @@ def test_the_sac_policy_shipped_for_v4_records_its_training():
     finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
     assert "it beats the base controller alone (0.2007)" in finished
 
+
+def test_the_gated_policy_shipped_for_v5_records_its_training():
+    """residual-sac-gated: the best of five seeds of sac.yml's recipe on
+    MicroGravityLanding-Residual-v5 by the control cost on 40 validation episodes
+    (training/select_seed.py; docs/controllers.md gives all five), deployed gated to the contact
+    on `adaptive-dither` and reading the paper's sensors; the model shipped was reached within 30
+    minutes."""
+    folder = shipped_policy_folder("residual-sac-gated")
+    card = policy_card(folder)
+    assert card["command"].startswith(f"microg train --algo sac --env MicroGravityLanding-Residual-v5 --seed {GATED_SEED} ")
+    assert card["env_id"] == "MicroGravityLanding-Residual-v5"
+    recipe = load_hyperparams("sac", "MicroGravityLanding-Residual-v5").as_config()
+    assert card["hyperparams"] == json.loads(json.dumps(recipe))
+    env = card["env_kwargs"]
+    assert (env["base_controller"], env["residual_gate_m"]) == ("adaptive-dither", 0.0)
+    assert env["hidden_observations"] == ["support_position", "lander_accel", "pad_force"]
+    controller = load_policy(folder, 1e-3)
+    assert controller.residual_gate_m == 0.0 and controller.policy.squash
+    assert sorted(controller._hidden) == sorted(OBSERVATION_INDEX[name] for name in SENSOR_SETS["paper"] + ("support_position",))
+    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
+    assert totals["timesteps"] >= card["target_timesteps"] == 300_000
+    assert 0 < card["wall_s"] <= min(1800, totals["wall_s"])  # reached within 30 minutes (the run went on)
+    assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
+    finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
+    assert "it beats the base controller alone (0.1936)" in finished
 
 @pytest.mark.slow
 def test_the_shipped_policy_beats_the_pid_fivefold_on_held_out_cases():
