@@ -225,7 +225,8 @@ def test_the_gated_policy_shipped_for_v5_records_its_training():
     minutes."""
     folder = shipped_policy_folder("residual-sac-gated")
     card = policy_card(folder)
-    assert card["command"].startswith(f"microg train --algo sac --env MicroGravityLanding-Residual-v5 --seed {GATED_SEED} ")
+    command = f"microg train --algo sac --env MicroGravityLanding-Residual-v5 --seed {GATED_SEED} "
+    assert card["command"].startswith(command)
     assert card["env_id"] == "MicroGravityLanding-Residual-v5"
     recipe = load_hyperparams("sac", "MicroGravityLanding-Residual-v5").as_config()
     assert card["hyperparams"] == json.loads(json.dumps(recipe))
@@ -233,14 +234,17 @@ def test_the_gated_policy_shipped_for_v5_records_its_training():
     assert (env["base_controller"], env["residual_gate_m"]) == ("adaptive-dither", 0.0)
     assert env["hidden_observations"] == ["support_position", "lander_accel", "pad_force"]
     controller = load_policy(folder, 1e-3)
-    assert controller.residual_gate_m == 0.0 and controller.policy.squash
-    assert sorted(controller._hidden) == sorted(OBSERVATION_INDEX[name] for name in SENSOR_SETS["paper"] + ("support_position",))
+    assert controller.residual_gate_m == 0.0
+    assert controller.policy.squash  # SAC's tanh
+    hidden = (*SENSOR_SETS["paper"], "support_position")
+    assert sorted(controller._hidden) == sorted(OBSERVATION_INDEX[name] for name in hidden)
     totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
     assert totals["timesteps"] >= card["target_timesteps"] == 300_000
     assert 0 < card["wall_s"] <= min(1800, totals["wall_s"])  # reached within 30 minutes (the run went on)
     assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
     finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
     assert "it beats the base controller alone (0.1936)" in finished
+
 
 @pytest.mark.slow
 def test_the_shipped_policy_beats_the_pid_fivefold_on_held_out_cases():
