@@ -127,13 +127,11 @@ _register(
 # foot reads at or below the pad's surface (encoder + ruler), on the best deployable classical
 # controller (`adaptive-dither`), which alone flies every free fall, and the agent reads only the
 # paper's rig's sensors (SENSOR_SETS["paper"] hidden from it, whatever the rig has; the base reads
-# all the rig has), so one policy runs alike on both sensor sets. It is shown the foot's height
-# again, the reading that opens its gate (blind to it, three seeds kicked x at the opening and
-# did worse than the base at the collision by 100 000 steps); its action counts only near the pad,
-# where training's heights and the held-out ones agree. The paper's Conclusions propose
-# learning "to adjust control during the collision"; on v1-v4 the learners' residual through the
-# free fall cost 2-4 times the dither's compensation error (docs/controllers.md). A zero action
-# is exactly `adaptive-dither`: reward_threshold is its return.
+# all the rig has), so one policy runs alike on both sensor sets. It is shown the foot's height,
+# which opens its gate; its action counts only near the pad, where training's heights and the
+# held-out ones agree. The paper's Conclusions propose learning "to adjust control during the
+# collision"; why the free fall is left to the base: docs/controllers.md. A zero action is
+# exactly `adaptive-dither`: reward_threshold is its return.
 _register(
     "MicroGravityLanding-Residual-v5",
     {

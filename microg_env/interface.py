@@ -72,8 +72,8 @@ RESIDUAL_HIGHPASS_ORDERS = (1, 2)  # the lowest and highest
 RESIDUAL_HIGHPASS_RANGE_HZ = (0.0, 100.0)
 
 #: The foot heights at or below which a gated residual acts (the environment's
-#: ``residual_gate_m``), m: from the pad's surface (the contact alone) to 0.1 m, above every
-#: schedule's start (the gate then never closes before the pad).
+#: ``residual_gate_m``), m: from the pad's surface (the contact alone) to 0.1 m, above the paper's
+#: and training's starts (such a gate never closes before the pad).
 RESIDUAL_GATE_RANGE_M = (0.0, 0.1)
 
 

@@ -157,8 +157,8 @@ class PolicyController(VectorController):
     (:func:`~microg_env.interface.residual_setpoint`, ``residual_highpass_order`` stages), and the
     ``hidden_observations`` read 0 to the policy, and with ``residual_gate_m`` the action acts only
     while the foot reads at most that high (:func:`~microg_env.interface.gated_actions`), as the
-    environment's. An all-zero residual is
-    exactly the base controller. Many rigs' observations go through the policy in one batch.
+    environment's. An all-zero residual is exactly the base controller. Many rigs' observations go
+    through the policy in one batch.
     """
 
     STATE: ClassVar[dict[str, float]] = {

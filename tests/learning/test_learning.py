@@ -166,6 +166,7 @@ def _random_policy(seed: int) -> MLPPolicy:
         (2.0, 2, (), None),
         (2.0, 2, ("support_position", "height"), None),
         (2.0, 2, (), 0.053),  # condition 3 starts at 55 mm: the gate opens after about 2.2 s
+        (2.0, 2, ("support_position", "height"), 0.053),  # the gate reads the height the policy is not shown
     ],
 )
 def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpass_hz, order, hidden, gate):
@@ -187,7 +188,8 @@ def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpa
     for _ in range(600):  # 3 s
         assert all(observation[OBSERVATION_INDEX[name]] == 0.0 for name in hidden)
         action = policy.predict(observation)[0]
-        height_m = float(observation[OBSERVATION_INDEX["height"]]) * OBSERVATION_SCALES["height"]
+        reading = residual_env.core.observation[0, OBSERVATION_INDEX["height"]]  # shown to the policy or not
+        height_m = float(reading) * OBSERVATION_SCALES["height"]
         observation, _, _, _, info = residual_env.step(action)
         xs.append(info["x_m"])
         commands.append(info["command_m_s"])
