@@ -394,6 +394,21 @@ def test_a_gate_passes_each_rigs_action_while_its_foot_reads_at_or_below_the_gat
     assert gated_actions(actions, observations, None) is actions  # no gate
 
 
+def test_a_foot_exactly_at_the_gate_reads_at_it():
+    """The env writes the height reading as float32(height / scale); a foot exactly at a gate
+    (every mm from 1 to 99) passes it, and a reading one float32 step above does not: the gate is
+    compared in those units. Converted back to metres in float32, 24 of these readings were shut
+    out and 12 readings a step above passed."""
+    gates_m = np.arange(1, 100) * 1e-3
+    observations = np.zeros((gates_m.size, len(OBSERVATION_SCALES)), dtype=np.float32)
+    observations[:, OBSERVATION_INDEX["height"]] = [np.float32(g / OBSERVATION_SCALES["height"]) for g in gates_m]
+    for gate_m, row in zip(gates_m, observations, strict=True):
+        assert gated_actions(np.ones(1), row[None], float(gate_m))[0] == 1.0, gate_m
+        above = row.copy()
+        above[OBSERVATION_INDEX["height"]] = np.nextafter(row[OBSERVATION_INDEX["height"]], np.float32(1))
+        assert gated_actions(np.ones(1), above[None], float(gate_m))[0] == 0.0, gate_m  # a float32 step above
+
+
 def test_a_residual_gated_to_the_contact_leaves_the_free_fall_to_the_base_controller():
     """``residual_gate_m=0``: until the first decision whose foot reading (encoder + ruler) is at
     or below the pad, a held action of 1 moves nothing, and the episode is the zero action's bit for
