@@ -137,9 +137,10 @@ def test_privileged_observation_follows_the_episode(recipe_probe):
 
 
 @pytest.mark.slow
-def test_select_seed_scores_runs_on_the_40_validation_episodes(monkeypatch, tmp_path, capsys):
-    """The seed selection of docs/controllers.md: the shipped v3 policy's 40-episode control cost
-    (0.3522) and the zero residual's (0.3811), as documented; runs of two tasks are refused."""
+def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(monkeypatch, tmp_path, capsys):
+    """The seed selection of docs/controllers.md, on the shipped v3 policy and 40 episodes: the
+    selection cost (mean excursion), the paired ratio to the zero residual, the worst excursion
+    beside it; runs of two tasks, and a count of episodes below 1, are refused."""
     import shutil
 
     from microg_env.controllers.registry import shipped_policy_folder
@@ -149,13 +150,17 @@ def test_select_seed_scores_runs_on_the_40_validation_episodes(monkeypatch, tmp_
     runs = [tmp_path / "v3", tmp_path / "v1"]
     for run, name in zip(runs, ("residual-ppo-adaptive", "residual-ppo"), strict=True):
         shutil.copytree(shipped_policy_folder(name), run / "policy")
-    assert select_seed.main([str(runs[0])]) == 0
+    assert select_seed.main(["--episodes", "40", str(runs[0])]) == 0
     out = capsys.readouterr().out
-    assert "| zero residual (adaptive) |  | 0.3811 |" in out
-    assert f"| {runs[0]} | 1 | 0.3522 |" in out
-    assert out.strip().endswith(f"lowest control cost: {runs[0]}")
+    assert out.startswith("40 validation episodes, seeds 500-539\n")
+    assert "| zero residual (adaptive) |  | 0.1404 | 0.0088 | 1.316 | 1.000x | 3.723 | 0.478 |" in out
+    assert f"| {runs[0]} | 1 | 0.1272 | 0.0118 | 1.153 | 0.877x | 3.404 | 0.393 |" in out
+    assert out.strip().endswith(f"lowest selection cost: {runs[0]}")
     with pytest.raises(SystemExit, match="trained on another task"):
         select_seed.main([str(run) for run in runs])
+    with pytest.raises(SystemExit):
+        select_seed.main(["--episodes", "0", str(runs[0])])
+    assert "--episodes must be at least 1, got 0" in capsys.readouterr().err
 
 
 def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):

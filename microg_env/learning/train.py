@@ -20,9 +20,10 @@ deterministic policy runs, as a :class:`~microg_env.controllers.policy.PolicyCon
 speed-action environment (exactly as it will be deployed), on ``eval_episodes`` validation
 schedules (:data:`~microg_env.scenarios.VALIDATION_SAMPLER`, longer than the training draws) with
 the training run's imperfections and randomisation, seeds from :data:`VALIDATION_SEED` (never a
-training or test seed); the cost is :func:`~microg_env.analysis.summary.control_cost`, the PID
-tuner's. Every file is written atomically; ``latest.json`` is written after its checkpoint's files,
-so ``--resume`` always finds a complete one, and continues the step count, the normalisation
+training or test seed); the cost is :func:`~microg_env.analysis.summary.selection_cost`, the PID
+tuner's with the mean excursion at the collision in place of the worst. Every file is written
+atomically; ``latest.json`` is written after its checkpoint's files, so ``--resume`` always finds a
+complete one, and continues the step count, the normalisation
 statistics, the replay buffer, the best cost, the evaluation history and the wall-clock total.
 """
 
@@ -504,12 +505,12 @@ class _Run:
     def validate(self, controller) -> tuple[list, float, float]:
         """The runs, failure rate and cost of ``controller`` on the validation schedules, the
         episodes the rigs of one batch."""
-        from microg_env.analysis.summary import control_cost
+        from microg_env.analysis.summary import selection_cost
         from microg_env.rollout.batch import evaluate_batch
 
         seeds = range(VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes)
         runs, failure_rate = evaluate_batch(validation_settings(self.params.env_kwargs), controller, seeds)
-        return runs, failure_rate, control_cost(runs)
+        return runs, failure_rate, selection_cost(runs)
 
     def base_cost(self) -> None:
         """A residual policy's line to beat: its base controller alone (a zero residual) on the
