@@ -35,10 +35,13 @@ from microg_env.controllers.registry import (
     shipped_policy_folder,
 )
 from microg_env.experiments.comparison import TEST_SEED
+from microg_env.learning.train import ENV_IDS as TRAINED_IDS
 from microg_env.scenarios import comparison_scenarios
 
-#: The learning task's ids, the newest first (the default).
-ENV_IDS = tuple(f"MicroGravityLanding-Residual-v{version}" for version in (5, 4, 3, 2, 1))
+#: The learning task's ids (the residual ones ``microg train`` trains on), the newest first (the default).
+ENV_IDS = tuple(
+    reversed([env_id for env_id in TRAINED_IDS if gym.spec(env_id).kwargs.get("action_mode") == "residual"])
+)
 #: The classical controllers run as the base with a zero residual, a row each.
 CLASSICAL = ("pid", "feedforward", "adaptive", "adaptive-dither", "oracle")
 SCENARIOS = ("training", *comparison_scenarios())
