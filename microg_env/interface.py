@@ -150,11 +150,12 @@ def gated_actions(actions: np.ndarray, observations: np.ndarray, gate_m: float |
     its foot reads at most ``gate_m`` above the pad (``observations``' height entry: the servo
     encoder and the grating ruler, a reading of the paper's rig as well), else 0, so that the base
     controller alone flies the descent above it; ``actions`` themselves without a gate. The gate is
-    compared in the observation's own float32 units, so a foot exactly at the gate reads at it."""
+    compared in the observation's own float32 units (whatever array holds the readings), so a foot
+    exactly at the gate reads at it."""
     if gate_m is None:
         return actions
-    gate = observations.dtype.type(gate_m / OBSERVATION_SCALES["height"])
-    return np.where(observations[:, OBSERVATION_INDEX["height"]] <= gate, actions, 0.0)
+    heights = np.asarray(observations[:, OBSERVATION_INDEX["height"]], dtype=np.float32)
+    return np.where(heights <= np.float32(gate_m / OBSERVATION_SCALES["height"]), actions, 0.0)
 
 
 def action_space() -> spaces.Box:

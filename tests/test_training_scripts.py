@@ -140,7 +140,7 @@ def test_privileged_observation_follows_the_episode(recipe_probe):
 def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(monkeypatch, tmp_path, capsys):
     """The seed selection of docs/controllers.md, on the shipped v3 policy and 40 episodes: the
     selection cost (mean excursion), the paired ratio to the zero residual, the worst excursion
-    beside it; runs of two tasks, and a count of episodes below 1, are refused."""
+    beside it; runs of two tasks, and counts of episodes that would reach no seed or a test seed, are refused."""
     import shutil
 
     from microg_env.controllers.registry import shipped_policy_folder
@@ -160,13 +160,17 @@ def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(mo
         select_seed.main([str(run) for run in runs])
     with pytest.raises(SystemExit):
         select_seed.main(["--episodes", "0", str(runs[0])])
-    assert "--episodes must be at least 1, got 0" in capsys.readouterr().err
+    assert "--episodes must be 1 to 500 (no test seed), got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        select_seed.main(["--episodes", "501", str(runs[0])])  # seed 1000 is the comparison's
+    assert "got 501" in capsys.readouterr().err
 
 
 def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):
     """The v4 policy (its hidden entries a JSON list) is v4's; on v3 it is refused before any row runs."""
     monkeypatch.syspath_prepend(str(TRAINING))
     returns_table = importlib.import_module("returns_table")
+    assert tuple(f"MicroGravityLanding-Residual-v{v}" for v in (5, 4, 3, 2, 1)) == returns_table.ENV_IDS  # newest first
     returns_table.policy_actor("MicroGravityLanding-Residual-v4", "residual-sac-adaptive")
     with pytest.raises(SystemExit) as exit_:
         returns_table.main(["--env", "MicroGravityLanding-Residual-v3", "--policies", "residual-sac-adaptive"])

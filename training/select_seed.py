@@ -22,6 +22,7 @@ from microg_env.analysis.metrics import RunMetrics
 from microg_env.analysis.summary import selection_cost
 from microg_env.controllers.registry import load_policy, policy_card
 from microg_env.envs.settings import TaskSettings
+from microg_env.experiments.comparison import TEST_SEED
 from microg_env.learning.train import VALIDATION_SEED, validation_settings
 from microg_env.rollout.batch import evaluate_batch
 
@@ -48,8 +49,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("runs", nargs="+", metavar="RUN_FOLDER")
     parser.add_argument("--episodes", type=int, default=EPISODES, help=f"validation episodes (default {EPISODES})")
     args = parser.parse_args(argv)
-    if args.episodes < 1:
-        parser.error(f"--episodes must be at least 1, got {args.episodes}")
+    if not 1 <= args.episodes <= TEST_SEED - VALIDATION_SEED:
+        parser.error(f"--episodes must be 1 to {TEST_SEED - VALIDATION_SEED} (no test seed), got {args.episodes}")
     runs = list(dict.fromkeys(args.runs))
     try:
         cards = [policy_card(Path(run) / "policy") for run in runs]

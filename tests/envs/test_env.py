@@ -396,14 +396,15 @@ def test_a_gate_passes_each_rigs_action_while_its_foot_reads_at_or_below_the_gat
 
 def test_a_foot_exactly_at_the_gate_reads_at_it():
     """The env writes the height reading as float32(height / scale); a foot exactly at a gate
-    (every mm from 1 to 99) passes it, and a reading one float32 step above does not: the gate is
-    compared in those units. Converted back to metres in float32, 24 of these readings were shut
-    out and 12 readings a step above passed."""
+    (every mm from 1 to 99) passes it, held as float32 or widened to float64, and a reading one
+    float32 step above does not: the gate is compared in those units. Converted back to metres in
+    float32, 24 of these readings were shut out and 12 readings a step above passed."""
     gates_m = np.arange(1, 100) * 1e-3
     observations = np.zeros((gates_m.size, len(OBSERVATION_SCALES)), dtype=np.float32)
     observations[:, OBSERVATION_INDEX["height"]] = [np.float32(g / OBSERVATION_SCALES["height"]) for g in gates_m]
     for gate_m, row in zip(gates_m, observations, strict=True):
         assert gated_actions(np.ones(1), row[None], float(gate_m))[0] == 1.0, gate_m
+        assert gated_actions(np.ones(1), row[None].astype(np.float64), float(gate_m))[0] == 1.0, gate_m  # widened
         above = row.copy()
         above[OBSERVATION_INDEX["height"]] = np.nextafter(row[OBSERVATION_INDEX["height"]], np.float32(1))
         assert gated_actions(np.ones(1), above[None], float(gate_m))[0] == 0.0, gate_m  # a float32 step above

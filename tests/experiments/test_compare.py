@@ -240,6 +240,8 @@ def test_the_gated_policy_shipped_for_v5_records_its_training():
     assert sorted(controller._hidden) == sorted(OBSERVATION_INDEX[name] for name in hidden)
     totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
     assert "--eval-freq 20000 --eval-episodes 40 " in card["command"]
+    for row in json.loads((folder / "evaluations.json").read_text(encoding="utf-8")):  # by the mean (0.12)
+        assert row["cost"] == pytest.approx(row["compensation_error_pct"] + row["collision_excursion_um"] / 10)
     assert totals["timesteps"] >= card["target_timesteps"] == 200_000
     assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
     assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
