@@ -23,8 +23,8 @@ the training run's imperfections and randomisation, seeds from :data:`VALIDATION
 training or test seed); the cost is :func:`~microg_env.analysis.summary.selection_cost`, the PID
 tuner's with the mean excursion at the collision in place of the worst. Every file is written
 atomically; ``latest.json`` is written after its checkpoint's files, so ``--resume`` always finds a
-complete one, and continues the step count, the normalisation
-statistics, the replay buffer, the best cost, the evaluation history and the wall-clock total.
+complete one, and continues the step count, the normalisation statistics, the replay buffer, the
+best cost, the evaluation history and the wall-clock total.
 """
 
 from __future__ import annotations
