@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from microg_env.analysis.metrics import RunMetrics
-from microg_env.analysis.summary import selection_cost
+from microg_env.analysis.summary import finite_mean, selection_cost
 from microg_env.controllers.registry import load_policy, policy_card
 from microg_env.envs.settings import TaskSettings
 from microg_env.experiments.comparison import TEST_SEED
@@ -33,11 +33,10 @@ EPISODES = 200
 def scores(runs: list[RunMetrics]) -> dict[str, float]:
     """The selection cost and the figures it is made of, the worst x at the collision and the mean
     x in free fall (which the cost leaves out)."""
-    errors = [abs(e) for run in runs for e in run.compensation_error_pct if np.isfinite(e)]
     collision_um = [run.flexible_unit_excursion_collision_m * 1e6 for run in runs]
     return {
         "cost": selection_cost(runs),
-        "compensation_error_pct": float(np.mean(errors)),
+        "compensation_error_pct": finite_mean(abs(e) for run in runs for e in run.compensation_error_pct),
         "collision_um": float(np.mean(collision_um)),
         "worst_collision_um": max(collision_um),
         "free_fall_um": float(np.mean([run.flexible_unit_excursion_free_fall_m for run in runs])) * 1e6,
@@ -65,8 +64,7 @@ def main(argv: list[str]) -> int:
     settings = validation_settings(task)
     period = TaskSettings(**settings).control_period_s
     seeds = range(VALIDATION_SEED, VALIDATION_SEED + args.episodes)
-    zero = f"zero residual ({task['base_controller']})"
-    rows = {zero: (task["base_controller"], "")}
+    rows = {f"zero residual ({task['base_controller']})": (task["base_controller"], "")}  # first: the line
     for run, card in zip(runs, cards, strict=True):
         rows[run] = (load_policy(Path(run) / "policy", period), card.get("seed", ""))
     print(f"{args.episodes} validation episodes, seeds {seeds[0]}-{seeds[-1]}")
@@ -75,11 +73,11 @@ def main(argv: list[str]) -> int:
         "worst x, collision [um] | x in free fall [um] |"
     )
     print("|---|---|---|---|---|---|---|---|")
-    costs = {}
+    costs, line = {}, None
     for name, (controller, seed) in rows.items():
         row = scores(evaluate_batch(settings, controller, seeds)[0])
         costs[name] = row["cost"]
-        if name == zero:
+        if line is None:  # the zero residual's, the first row
             line = row["collision_um"]
         print(
             f"| {name} | {seed} | {row['cost']:.4f} | {row['compensation_error_pct']:.4f} | "
