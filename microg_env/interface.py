@@ -36,6 +36,10 @@ SCALES = np.array(list(OBSERVATION_SCALES.values()))
 #: sensor above; ``paper``: the paper's rig, which closes its loops on the grating ruler and the
 #: servo encoder only (Section 4.1), with no pad force sensor and no accelerometer.
 SENSOR_SETS: dict[str, tuple[str, ...]] = {"extended": (), "paper": ("lander_accel", "pad_force")}
+#: The environment's ``sensor_set`` that draws each episode's set from SENSOR_SETS at its reset, with
+#: equal odds (an engineering choice: no rig is favoured), so one training run meets both rigs and
+#: its residual learns on the base controller as each rig's sensors leave it.
+MIXED_SENSORS = "mixed"
 
 #: Drive speed that the action +-1 stands for in the speed action mode, m/s: the paper's rig's
 #: maximum (Section 4.1), a fixed unit of the action whatever rig is simulated (a slower drive

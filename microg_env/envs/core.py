@@ -31,6 +31,7 @@ from microg_env.imperfections import apply_imperfections
 from microg_env.interface import (
     DESCENT_LIMIT_M_S,
     MAX_SPEED_M_S,
+    MIXED_SENSORS,
     OBSERVATION_INDEX,
     SCALES,
     SENSOR_SETS,
@@ -117,6 +118,7 @@ class Episode:
     scenario: Scenario  # the schedule (drawn, with the drawn test weights)
     height_m: float  # the foot's start height above the pad
     drift_rate_k_per_s: float  # the balancer gas's temperature rate
+    sensor_set: str  # the rig's sensors (a key of SENSOR_SETS)
 
 
 class LandingCore:
@@ -156,7 +158,14 @@ class LandingCore:
         for name in TASK_ATTRIBUTES:
             setattr(self, name, getattr(settings, name))
         self.base_params = settings.params
-        self._missing = np.array([OBSERVATION_INDEX[name] for name in SENSOR_SETS[self.sensor_set]], dtype=np.int64)
+        # each sensor set's observation entries that read 0 (True), and each rig's current row of them
+        self._lacking = {
+            name: np.isin(np.arange(len(SCALES)), [OBSERVATION_INDEX[entry] for entry in missing])
+            for name, missing in SENSOR_SETS.items()
+        }
+        fixed = self.sensor_set if self.sensor_set != MIXED_SENSORS else "extended"
+        self._missing = np.flatnonzero(self._lacking[fixed])  # the fixed set's (the compiled PID loop's)
+        self._lacks = np.tile(self._lacking[fixed], (num_rigs, 1))
         self._hidden = np.array([OBSERVATION_INDEX[name] for name in self.hidden_observations], dtype=np.int64)
         for each in set(self.scenarios):
             _check_reset_noise(self.reset_noise_scale, each)
@@ -289,7 +298,10 @@ class LandingCore:
             height += rng.uniform(-self.reset_noise_scale, self.reset_noise_scale)
         drift = params.drift
         rate = rng.uniform(-1.0, 1.0) * drift.max_temperature_rate_k_per_s if self.imperfections.balancer_drift else 0.0
-        return Episode(params, scenario, height, rate)
+        sensors = self.sensor_set
+        if sensors == MIXED_SENSORS:  # from a child of ``rng``: what ``rng`` draws stays the fixed sets'
+            sensors = tuple(SENSOR_SETS)[rng.spawn(1)[0].integers(len(SENSOR_SETS))]
+        return Episode(params, scenario, height, rate, sensors)
 
     def reset(self, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
         """Start a new episode on rigs ``ids``, each drawn from its generator ``rngs[rig]``.
@@ -320,6 +332,7 @@ class LandingCore:
             self.reference_weight_n[i] = episode.scenario.loads[0].mass_kg * episode.params.gravity_m_s2
             self.gravity[i] = episode.params.gravity_m_s2
             self.trim_height_m[i] = episode.height_m
+            self._lacks[i] = self._lacking[episode.sensor_set]
         physics.reset(ids)
         for i, episode in zip(ids, episodes, strict=True):
             for name, index, value in rig.start_state(episode.params, episode.height_m):
@@ -415,13 +428,15 @@ class LandingCore:
     def can_run_pid(self, controller: Any) -> bool:
         """Whether :meth:`run_pid` can drive this core's rig with ``controller``: a :class:`PID`
         itself (not a subclass, which may act otherwise), on one rig stepping its own ``MjData``,
-        its actions the drive's speeds, one period per step, every observation entry shown."""
+        its actions the drive's speeds, one period per step, every observation entry shown, the
+        rig's sensor set fixed."""
         return (
             type(controller) is PID
             and isinstance(self.physics, ModelPhysics)
             and self.base is None
             and self.decision_period == 1
             and not self._hidden.size
+            and self.sensor_set != MIXED_SENSORS
             and mj_step is not None
         )
 
@@ -508,6 +523,10 @@ class LandingCore:
                 self._noise.exhausted |= result == 1
                 if self._missing.size:  # sensors the rig's set lacks read 0
                     self.observation[np.ix_(ids, self._missing)] = 0.0
+                elif self.sensor_set == MIXED_SENSORS:  # each rig's drawn set's
+                    rows = self.observation[ids]
+                    rows[self._lacks[ids]] = 0.0
+                    self.observation[ids] = rows
                 return codes
             if result == -1:
                 due = ~np.isnan(height)

@@ -128,7 +128,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``residual_gate_m`` | foot height at or below which the residual acts, m (None: always) |
     | ``imperfections`` | which non-ideal effects are on (or their flags as a dict) |
     | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
-    | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force and accelerometer read 0) |
+    | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force, accelerometer read 0); ``"mixed"``: drawn |
     | ``hidden_observations`` | observation entries the agent is shown as 0 (a residual's base reads them) |
     | ``params`` | the rig (the scenario's explicit overrides are applied on top) |
     | ``xml_file`` | an MJCF template other than the packaged ``scene.xml`` |

@@ -19,6 +19,7 @@ from microg_env.imperfections import DomainRandomization, Imperfections
 from microg_env.interface import (
     ACTION_MODES,
     DESCENT_SCALE_M_S,
+    MIXED_SENSORS,
     RESIDUAL_HIGHPASS_RANGE_HZ,
     RESIDUAL_LIMIT_M,
     SENSOR_SETS,
@@ -76,7 +77,7 @@ class TaskSettings:
             validate.instance("scenario", self.scenario, Scenario)
         put("imperfections", _imperfections(self.imperfections))
         put("domain_randomization", _randomization(self.domain_randomization))
-        validate.choice("sensor_set", self.sensor_set, tuple(SENSOR_SETS))
+        validate.choice("sensor_set", self.sensor_set, (*SENSOR_SETS, MIXED_SENSORS))
         put("hidden_observations", hidden_entries(self.hidden_observations))
         put("params", RigParams() if self.params is None else self.params)
         validate.instance("params", self.params, RigParams)

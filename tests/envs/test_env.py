@@ -700,6 +700,53 @@ def test_the_papers_sensor_set_hides_the_pad_force_and_accelerometer_and_nothing
         MicroGravityLandingEnv(sensor_set="ruler")
 
 
+def test_a_mixed_sensor_set_draws_each_episodes_set_with_equal_odds_leaving_every_other_draw():
+    """``sensor_set="mixed"`` draws the paper's set or the extended one at each reset, about as
+    often each, from a child of the episode's generator: the plant, schedule and drift of a seed
+    are those of the fixed sets (and so is its sensor noise, by the next test)."""
+    mixed = MicroGravityLandingEnv(sensor_set="mixed", scenario_sampler="training", domain_randomization="full")
+    fixed = MicroGravityLandingEnv(scenario_sampler="training", domain_randomization="full")
+    drawn = []
+    for seed in range(400):
+        episode = mixed.core.draw_episode(0, np.random.default_rng(seed))
+        same = fixed.core.draw_episode(0, np.random.default_rng(seed))
+        assert (episode.params, episode.scenario, episode.height_m) == (same.params, same.scenario, same.height_m)
+        assert episode.drift_rate_k_per_s == same.drift_rate_k_per_s
+        assert same.sensor_set == "extended"
+        drawn.append(episode.sensor_set)
+    assert set(drawn) == {"paper", "extended"}
+    assert 160 <= drawn.count("paper") <= 240  # 200 +- 4 standard deviations of 400 fair draws
+    assert not mixed.core.can_run_pid(make_controller("pid", mixed.control_period_s))
+
+
+@pytest.mark.slow
+def test_a_mixed_sensor_set_runs_each_episode_bit_for_bit_as_its_drawn_set():
+    """An episode of the mixed set is the fixed drawn set's episode of the same seed, observations
+    and physics, with a controller that reads the pad force (so the sets' episodes differ)."""
+    touch = Scenario("touch", (LoadStep(1.5),), descent_height_m=0.002, duration_s=0.6)
+    runs = {}
+    for sensors in ("mixed", "paper", "extended"):
+        env = MicroGravityLandingEnv(scenario=touch, sensor_set=sensors)
+        controller = make_controller("feedforward", env.control_period_s)
+        for seed in range(6):
+            observation, _ = env.reset(seed=seed)
+            controller.reset()
+            rows = [observation]
+            for _ in range(600):
+                observation, _, terminated, truncated, info = env.step(controller(observation))
+                rows.append(observation)
+                if terminated or truncated:
+                    break
+            runs[sensors, seed] = np.array(rows), env.core.episodes[0].sensor_set, info["pad_force_n"]
+    assert {runs["mixed", seed][1] for seed in range(6)} == {"paper", "extended"}
+    for seed in range(6):
+        rows, drawn, force = runs["mixed", seed]
+        assert force > 1.0  # the lander is on the pad
+        np.testing.assert_array_equal(rows, runs[drawn, seed][0])
+        other = "paper" if drawn == "extended" else "extended"
+        assert not np.array_equal(rows, runs[other, seed][0])
+
+
 @pytest.mark.parametrize(("decision_period", "fps"), [(1, 1000), (5, 200)])
 def test_dt_and_render_fps_are_one_step_of_simulated_time(decision_period, fps):
     """A step holds the action ``decision_period`` control periods: ``dt`` is that time (as

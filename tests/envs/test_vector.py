@@ -64,6 +64,15 @@ def _rollout(env, actions, seed):
             "residual_gate_m": 0.0,
             "domain_randomization": True,
         },
+        {
+            "scenario": TOUCH,
+            "action_mode": "residual",
+            "base_controller": "adaptive-dither",
+            "decision_period": 3,
+            "residual_gate_m": 0.0,
+            "domain_randomization": True,
+            "sensor_set": "mixed",
+        },
     ],
     ids=[
         "speed-randomised",
@@ -71,6 +80,7 @@ def _rollout(env, actions, seed):
         "residual-feedforward",
         "residual-descent-reward",
         "residual-gated",
+        "residual-gated-mixed-sensors",
     ],
 )
 @pytest.mark.slow
