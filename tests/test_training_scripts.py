@@ -204,3 +204,77 @@ def test_the_descent_reward_probe_recipe_is_the_dither_probe_paid_for_its_descen
     assert probe["env_kwargs"].pop("reward_descent_weight") == 0.5
     assert "reward_descent_weight" not in dither["env_kwargs"]
     assert probe == dither
+
+
+def test_gain_by_base_error_bins_paired_episodes_by_the_references_own_value(monkeypatch, tmp_path, capsys):
+    """Hand-made pairs: bins by the reference's value (edges in µm), the bins' means, ratio and
+    share won; an episode the controller did not run is left out, an empty bin is not printed, a
+    missing file is one line on stderr with exit 2."""
+    import json
+
+    monkeypatch.syspath_prepend(str(TRAINING))
+    gain = importlib.import_module("gain_by_base_error")
+    values = {  # (scenario, seed): (reference, controller), µm
+        ("a", 1): (0.2, 0.4),
+        ("a", 2): (0.4, 0.3),
+        ("b", 1): (3.0, 2.0),
+        ("b", 2): (5.0, 3.0),
+    }
+    cases = [
+        {"controller": name, "scenario": scenario, "seed": seed, "values": {"collision_excursion_m": v[k] * 1e-6}}
+        for (scenario, seed), v in values.items()
+        for k, name in enumerate(("ref", "mine"))
+    ]
+    cases.append({"controller": "ref", "scenario": "c", "seed": 1, "values": {"collision_excursion_m": 9e-6}})
+    quantity = {"label": "x at the collision", "unit": "µm", "si_unit_times": 1e6}
+    path = tmp_path / "comparison.json"
+    path.write_text(json.dumps({"cases": cases, "quantities": {"collision_excursion_m": quantity}}))
+    args = [str(path), "--controller", "mine", "--reference", "ref", "--edges", "1,2"]
+    assert gain.main(args) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[3:] == [
+        "| 0 to 1 | 2 | 0.300 | 0.350 | 1.17x | 50% |",
+        "| 2 to inf | 2 | 4.000 | 2.500 | 0.62x | 100% |",
+    ]
+    with pytest.raises(SystemExit) as exit_:
+        gain.main([str(tmp_path / "missing.json")])
+    assert exit_.value.code == 2
+    assert "missing.json: FileNotFoundError" in capsys.readouterr().err
+
+
+def test_the_both_rigs_probe_recipe_is_the_packaged_gated_recipe_on_drawn_sensor_sets():
+    """training/sac_on_both_rigs.yml differs from the packaged v5 SAC recipe in its sensor set only."""
+    from microg_env.learning import hyperparams
+
+    env_id = "MicroGravityLanding-Residual-v5"
+    probe = hyperparams.load("sac", env_id, TRAINING / "sac_on_both_rigs.yml").as_config()
+    packaged = hyperparams.load("sac", env_id).as_config()
+    assert probe["env_kwargs"].pop("sensor_set") == "mixed"
+    assert "sensor_set" not in packaged["env_kwargs"]
+    assert probe == packaged
+
+
+def test_reward_by_phase_splits_the_gated_policys_return_where_its_gate_opens(monkeypatch, capsys):
+    """The gated policy acts from the first contact on, so its return before it is the zero
+    residual's exactly, on both rigs, while it moves the first contact's peak; the table has a row
+    per rig; a count of no episodes is refused."""
+    import gymnasium as gym
+    import numpy as np
+
+    monkeypatch.syspath_prepend(str(TRAINING))
+    phases = importlib.import_module("reward_by_phase")
+    env_id = "MicroGravityLanding-Residual-v5"
+    act = phases.policy_actor(env_id, "residual-sac-gated")
+    for sensors in ("extended", "paper"):
+        env = gym.make(env_id, sensor_set=sensors)
+        zero = lambda obs: np.zeros(1, dtype=np.float32)  # noqa: E731
+        (mine, peak), (base, base_peak) = (phases.phase_returns(env, a, 1000) for a in (act, zero))
+        assert mine[0] == base[0] > 0
+        assert mine[1] != base[1]
+        assert peak != base_peak > 0
+    assert phases.main(["--seeds", "1"]) == 0
+    rows = capsys.readouterr().out.splitlines()[3:]
+    assert [row.split(" | ")[0] for row in rows] == ["| extended", "| paper"]
+    with pytest.raises(SystemExit):
+        phases.main(["--seeds", "0"])
+    assert "--seeds must be at least 1, got 0" in capsys.readouterr().err

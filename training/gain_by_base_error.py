@@ -1,0 +1,78 @@
+"""Where a controller gains on its reference and where it loses: a comparison's paired episodes
+binned by what the reference itself leaves.
+
+A residual policy is trained on plants drawn around the nominal one, and its base controller
+leaves some of them a large excursion and others a small one; a residual that cannot tell them
+apart adds the same correction to both. Binning the paired episodes of a ``microg compare`` result
+by the reference's own excursion shows it: the ratio (controller / reference, of the bin's means)
+and the share of episodes the controller wins, per bin. docs/controllers.md's "why it loses on the
+nominal plant" comes from the default arguments on ``docs/comparison-held-out-extended`` and
+``-paper``.
+
+Run: ``python training/gain_by_base_error.py RESULT/comparison.json [--controller residual-sac-gated]
+[--reference adaptive-dither] [--quantity collision_excursion_m] [--edges 0.5,1,2,4]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def paired(result: dict, controller: str, reference: str, quantity: str) -> np.ndarray:
+    """(reference, controller) values of ``quantity`` on each episode both ran (same scenario and seed)."""
+    values = {(c["controller"], c["scenario"], c["seed"]): c["values"][quantity] for c in result["cases"]}
+    pairs = [
+        (value, values[controller, scenario, seed])
+        for (name, scenario, seed), value in values.items()
+        if name == reference and (controller, scenario, seed) in values
+    ]
+    if not pairs:
+        raise ValueError(f"no episode has both {controller!r} and {reference!r}")
+    return np.array(pairs, dtype=float)
+
+
+def binned(pairs: np.ndarray, edges: list[float]) -> list[tuple[float, float, int, float, float, float]]:
+    """Per bin of the reference's value (``edges`` in the quantity's display unit, open at the
+    top): its low and high edge, episodes, the reference's and the controller's mean, and the share
+    of episodes the controller wins (a lower value)."""
+    bounds = [0.0, *edges, np.inf]
+    rows = []
+    for low, high in itertools.pairwise(bounds):
+        inside = pairs[(pairs[:, 0] >= low) & (pairs[:, 0] < high)]
+        if inside.size:
+            base, mine = inside.mean(axis=0)
+            rows.append((low, high, len(inside), base, mine, float(np.mean(inside[:, 1] < inside[:, 0]))))
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("result", type=Path, help="a comparison.json written by microg compare")
+    parser.add_argument("--controller", default="residual-sac-gated")
+    parser.add_argument("--reference", default="adaptive-dither")
+    parser.add_argument("--quantity", default="collision_excursion_m")
+    parser.add_argument("--edges", default="0.5,1,2,4", help="bin edges in the quantity's display unit")
+    args = parser.parse_args(argv)
+    try:
+        result = json.loads(args.result.read_text(encoding="utf-8"))
+        unit = result["quantities"][args.quantity]
+        edges = [float(edge) for edge in args.edges.split(",")]
+        pairs = paired(result, args.controller, args.reference, args.quantity) * unit["si_unit_times"]
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        parser.error(f"{args.result}: {type(error).__name__}: {error}")
+    print(f"{unit['label']} ({unit['unit']}) of {args.controller} against {args.reference}, by {args.reference}'s")
+    print("| reference's | episodes | reference | controller | ratio | controller wins |")
+    print("|---|---|---|---|---|---|")
+    for low, high, count, base, mine, won in binned(pairs, edges):
+        print(f"| {low:g} to {high:g} | {count} | {base:.3f} | {mine:.3f} | {mine / base:.2f}x | {won:.0%} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

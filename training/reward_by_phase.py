@@ -1,0 +1,84 @@
+"""What the reward pays a learned residual for, phase by phase: its return minus the zero
+residual's on the same seeds, before the first contact, during it and after it, beside what it
+does to the peak x in the first contact (the comparison's "x at the collision"): means over the
+seeds ± their standard error.
+
+The reward scores x in decades every control period (docs/environment.md, "Rewards"), so a
+residual that lowers the collision's peak but raises x where x is small can earn nothing for it.
+docs/controllers.md's "Training on both rigs" runs the default arguments with ``--seeds 100``:
+the shipped ``residual-sac-gated`` on its task's own draws (seeds from 1000), on each sensor set.
+A phase is read at each step's last control period: the first contact from the first step with
+the foot below the pad's surface to the first step after it with no pad force.
+
+Run: ``python training/reward_by_phase.py [--env MicroGravityLanding-Residual-v5]
+[--policy residual-sac-gated] [--seeds 40]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import gymnasium as gym
+import numpy as np
+from returns_table import ENV_IDS, policy_actor
+
+from microg_env.experiments.comparison import TEST_SEED
+from microg_env.interface import SENSOR_SETS
+
+#: The phases of an episode, in order.
+PHASES = ("before the contact", "first contact", "after it")
+
+
+def phase_returns(env: gym.Env, act, seed: int) -> tuple[np.ndarray, float]:
+    """The return of each phase (:data:`PHASES`) of one episode and its first contact's peak |x|, m."""
+    obs, _ = env.reset(seed=seed)
+    returns, phase, peak, pushed, done = np.zeros(len(PHASES)), 0, 0.0, False, False
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(act(obs))
+        done = terminated or truncated
+        if phase == 0 and info["foot_height_m"] < 0.0:
+            phase = 1
+        if phase == 1:
+            pushed |= info["pad_force_n"] > 0.0
+            if pushed and info["pad_force_n"] <= 0.0:
+                phase = 2
+            else:
+                peak = max(peak, abs(float(info["x_m"])))
+        returns[phase] += float(reward)
+    return returns, peak
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", choices=ENV_IDS, default="MicroGravityLanding-Residual-v5")
+    parser.add_argument("--policy", default="residual-sac-gated", help="a shipped policy or a policy folder")
+    parser.add_argument("--seeds", type=int, default=40, help="episodes per sensor set, seeds from 1000 (default 40)")
+    args = parser.parse_args(argv)
+    if args.seeds < 1:
+        parser.error(f"--seeds must be at least 1, got {args.seeds}")
+    try:
+        act = policy_actor(args.env, args.policy)
+    except ValueError as error:
+        parser.error(f"--policy: {error}")
+    zero = lambda obs: np.zeros(1, dtype=np.float32)  # noqa: E731
+    print(f"{args.policy} minus the zero residual on {args.env}'s draws, {args.seeds} seeds from {TEST_SEED}")
+    print("| sensors | " + " | ".join(f"return, {phase}" for phase in PHASES) + " | peak x, first contact [um] |")
+    print("|---" * (len(PHASES) + 2) + "|")
+    for sensors in SENSOR_SETS:
+        env = gym.make(args.env, sensor_set=sensors)
+        differences, peaks = [], []
+        for seed in range(TEST_SEED, TEST_SEED + args.seeds):
+            (mine, peak), (base, base_peak) = phase_returns(env, act, seed), phase_returns(env, zero, seed)
+            differences.append(mine - base)
+            peaks.append((peak - base_peak) * 1e6)
+        env.close()
+        columns = np.column_stack([np.array(differences), peaks])
+        error = columns.std(axis=0, ddof=1) / np.sqrt(len(columns)) if len(columns) > 1 else np.zeros(len(columns.T))
+        cells = [f"{mean:+.3f} ± {se:.3f}" for mean, se in zip(columns.mean(axis=0), error, strict=True)]
+        print(f"| {sensors} | " + " | ".join(cells) + " |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
