@@ -208,8 +208,9 @@ def test_the_descent_reward_probe_recipe_is_the_dither_probe_paid_for_its_descen
 
 def test_gain_by_base_error_bins_paired_episodes_by_the_references_own_value(monkeypatch, tmp_path, capsys):
     """Hand-made pairs: bins by the reference's value (edges in µm), the bins' means, ratio and
-    share won; an episode the controller did not run is left out, an empty bin is not printed, a
-    missing file is one line on stderr with exit 2."""
+    share won; an episode the controller did not run, or one without a value, is left out (the
+    latter counted), an empty bin is not printed; a missing file, bad edges, an unknown quantity or
+    controller are one line on stderr with exit 2."""
     import json
 
     monkeypatch.syspath_prepend(str(TRAINING))
@@ -226,20 +227,31 @@ def test_gain_by_base_error_bins_paired_episodes_by_the_references_own_value(mon
         for k, name in enumerate(("ref", "mine"))
     ]
     cases.append({"controller": "ref", "scenario": "c", "seed": 1, "values": {"collision_excursion_m": 9e-6}})
+    for name, value in (("ref", 1e-6), ("mine", None)):  # a run that ended before its value
+        cases.append({"controller": name, "scenario": "d", "seed": 1, "values": {"collision_excursion_m": value}})
     quantity = {"label": "x at the collision", "unit": "µm", "si_unit_times": 1e6}
     path = tmp_path / "comparison.json"
     path.write_text(json.dumps({"cases": cases, "quantities": {"collision_excursion_m": quantity}}))
     args = [str(path), "--controller", "mine", "--reference", "ref", "--edges", "1,2"]
     assert gain.main(args) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[3:] == [
+    assert lines[1] == "(1 episodes without a value of either left out)"
+    assert lines[4:] == [
         "| 0 to 1 | 2 | 0.300 | 0.350 | 1.17x | 50% |",
         "| 2 to inf | 2 | 4.000 | 2.500 | 0.62x | 100% |",
     ]
-    with pytest.raises(SystemExit) as exit_:
-        gain.main([str(tmp_path / "missing.json")])
-    assert exit_.value.code == 2
-    assert "missing.json: FileNotFoundError" in capsys.readouterr().err
+    for bad, message in [
+        ([str(tmp_path / "missing.json")], "missing.json: FileNotFoundError"),
+        ([*args[:-1], "2,1"], "--edges must be positive, finite and increasing, got '2,1'"),
+        ([*args[:-1], "1,nan"], "--edges must be positive, finite and increasing, got '1,nan'"),
+        ([*args[:-1], "one"], "--edges must be comma-separated numbers, got 'one'"),
+        ([*args, "--quantity", "x"], "--quantity 'x': not one of collision_excursion_m"),
+        ([str(path), "--reference", "ref"], "no controller 'residual-sac-gated' in it"),
+    ]:
+        with pytest.raises(SystemExit) as exit_:
+            gain.main(bad)
+        assert exit_.value.code == 2
+        assert message in capsys.readouterr().err
 
 
 def test_the_both_rigs_probe_recipe_is_the_packaged_gated_recipe_on_drawn_sensor_sets():
@@ -259,7 +271,6 @@ def test_reward_by_phase_splits_the_gated_policys_return_where_its_gate_opens(mo
     residual's exactly, on both rigs, while it moves the first contact's peak; the table has a row
     per rig; a count of no episodes is refused."""
     import gymnasium as gym
-    import numpy as np
 
     monkeypatch.syspath_prepend(str(TRAINING))
     phases = importlib.import_module("reward_by_phase")
@@ -267,8 +278,7 @@ def test_reward_by_phase_splits_the_gated_policys_return_where_its_gate_opens(mo
     act = phases.policy_actor(env_id, "residual-sac-gated")
     for sensors in ("extended", "paper"):
         env = gym.make(env_id, sensor_set=sensors)
-        zero = lambda obs: np.zeros(1, dtype=np.float32)  # noqa: E731
-        (mine, peak), (base, base_peak) = (phases.phase_returns(env, a, 1000) for a in (act, zero))
+        (mine, peak), (base, base_peak) = (phases.phase_returns(env, a, 1000) for a in (act, phases.zero_residual))
         assert mine[0] == base[0] > 0
         assert mine[1] != base[1]
         assert peak != base_peak > 0
@@ -278,3 +288,6 @@ def test_reward_by_phase_splits_the_gated_policys_return_where_its_gate_opens(mo
     with pytest.raises(SystemExit):
         phases.main(["--seeds", "0"])
     assert "--seeds must be at least 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        phases.main(["--reward-scale-m", "-1"])
+    assert "reward_scale_m" in capsys.readouterr().err

@@ -1,17 +1,20 @@
 """What the reward pays a learned residual for, phase by phase: its return minus the zero
 residual's on the same seeds, before the first contact, during it and after it, beside what it
-does to the peak x in the first contact (the comparison's "x at the collision"): means over the
-seeds ± their standard error.
+does to the first contact's peak x: means over the seeds ± their standard error.
 
 The reward scores x in decades every control period (docs/environment.md, "Rewards"), so a
 residual that lowers the collision's peak but raises x where x is small can earn nothing for it.
 docs/controllers.md's "Training on both rigs" runs the default arguments with ``--seeds 100``:
 the shipped ``residual-sac-gated`` on its task's own draws (seeds from 1000), on each sensor set.
-A phase is read at each step's last control period: the first contact from the first step with
-the foot below the pad's surface to the first step after it with no pad force.
+``--reward-scale-m`` scores x from another x0 than the id's (10 nm). Phases and the peak are
+read at each step's last control period (every ``decision_period``-th): the first contact from the
+first step with the foot below the pad's surface to the first step after it with no pad force
+(the boundaries of ``analysis.metrics.contacts``, at the step's resolution), so the peak is a lower
+bound of the comparison's "x at the collision", and a step that crosses a boundary counts whole
+to the later phase.
 
 Run: ``python training/reward_by_phase.py [--env MicroGravityLanding-Residual-v5]
-[--policy residual-sac-gated] [--seeds 40]``.
+[--policy residual-sac-gated] [--seeds 40] [--reward-scale-m 1e-8]``.
 """
 
 from __future__ import annotations
@@ -28,6 +31,11 @@ from microg_env.interface import SENSOR_SETS
 
 #: The phases of an episode, in order.
 PHASES = ("before the contact", "first contact", "after it")
+
+
+def zero_residual(observation: np.ndarray) -> np.ndarray:
+    """The line to beat: the base controller alone."""
+    return np.zeros(1, dtype=np.float32)
 
 
 def phase_returns(env: gym.Env, act, seed: int) -> tuple[np.ndarray, float]:
@@ -54,22 +62,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--env", choices=ENV_IDS, default="MicroGravityLanding-Residual-v5")
     parser.add_argument("--policy", default="residual-sac-gated", help="a shipped policy or a policy folder")
     parser.add_argument("--seeds", type=int, default=40, help="episodes per sensor set, seeds from 1000 (default 40)")
+    parser.add_argument("--reward-scale-m", type=float, help="x0 of the reward, m (default the id's)")
     args = parser.parse_args(argv)
     if args.seeds < 1:
         parser.error(f"--seeds must be at least 1, got {args.seeds}")
+    scale = {} if args.reward_scale_m is None else {"reward_scale_m": args.reward_scale_m}
     try:
         act = policy_actor(args.env, args.policy)
     except ValueError as error:
         parser.error(f"--policy: {error}")
-    zero = lambda obs: np.zeros(1, dtype=np.float32)  # noqa: E731
     print(f"{args.policy} minus the zero residual on {args.env}'s draws, {args.seeds} seeds from {TEST_SEED}")
     print("| sensors | " + " | ".join(f"return, {phase}" for phase in PHASES) + " | peak x, first contact [um] |")
     print("|---" * (len(PHASES) + 2) + "|")
     for sensors in SENSOR_SETS:
-        env = gym.make(args.env, sensor_set=sensors)
+        try:
+            env = gym.make(args.env, sensor_set=sensors, **scale)
+        except ValueError as error:
+            parser.error(str(error))
         differences, peaks = [], []
         for seed in range(TEST_SEED, TEST_SEED + args.seeds):
-            (mine, peak), (base, base_peak) = phase_returns(env, act, seed), phase_returns(env, zero, seed)
+            (mine, peak), (base, base_peak) = phase_returns(env, act, seed), phase_returns(env, zero_residual, seed)
             differences.append(mine - base)
             peaks.append((peak - base_peak) * 1e6)
         env.close()

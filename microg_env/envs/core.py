@@ -158,14 +158,15 @@ class LandingCore:
         for name in TASK_ATTRIBUTES:
             setattr(self, name, getattr(settings, name))
         self.base_params = settings.params
-        # each sensor set's observation entries that read 0 (True), and each rig's current row of them
-        self._lacking = {
+        # the observation entries each sensor set lacks (True: they read 0), and each rig's episode's row
+        self._missing_by_set = {
             name: np.isin(np.arange(len(SCALES)), [OBSERVATION_INDEX[entry] for entry in missing])
             for name, missing in SENSOR_SETS.items()
         }
         fixed = self.sensor_set if self.sensor_set != MIXED_SENSORS else "extended"
-        self._missing = np.flatnonzero(self._lacking[fixed])  # the fixed set's (the compiled PID loop's)
-        self._lacks = np.tile(self._lacking[fixed], (num_rigs, 1))
+        self._missing_by_rig = np.tile(self._missing_by_set[fixed], (num_rigs, 1))
+        # a fixed set's columns (also the compiled PID loop's, which a mixed set does not run)
+        self._missing = np.flatnonzero(self._missing_by_set[fixed])
         self._hidden = np.array([OBSERVATION_INDEX[name] for name in self.hidden_observations], dtype=np.int64)
         for each in set(self.scenarios):
             _check_reset_noise(self.reset_noise_scale, each)
@@ -332,7 +333,7 @@ class LandingCore:
             self.reference_weight_n[i] = episode.scenario.loads[0].mass_kg * episode.params.gravity_m_s2
             self.gravity[i] = episode.params.gravity_m_s2
             self.trim_height_m[i] = episode.height_m
-            self._lacks[i] = self._lacking[episode.sensor_set]
+            self._missing_by_rig[i] = self._missing_by_set[episode.sensor_set]
         physics.reset(ids)
         for i, episode in zip(ids, episodes, strict=True):
             for name, index, value in rig.start_state(episode.params, episode.height_m):
@@ -525,7 +526,7 @@ class LandingCore:
                     self.observation[np.ix_(ids, self._missing)] = 0.0
                 elif self.sensor_set == MIXED_SENSORS:  # each rig's drawn set's
                     rows = self.observation[ids]
-                    rows[self._lacks[ids]] = 0.0
+                    rows[self._missing_by_rig[ids]] = 0.0
                     self.observation[ids] = rows
                 return codes
             if result == -1:
