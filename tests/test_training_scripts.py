@@ -1,6 +1,6 @@
 """The analysis scripts behind the adaptive baseline's settings and its dither, the partial oracles of
-docs/controllers.md, the dither probe, its returns table, the recipe probes and the seed selection
-run, and the probes' asymmetric critic and export hold."""
+docs/controllers.md, the dither probe, its returns table, the recipe and fine-tuning probes, the
+seed selection run, the gain and reward breakdowns, and the probes' asymmetric critic and export hold."""
 
 from __future__ import annotations
 
@@ -20,6 +20,11 @@ TRAINING = Path(__file__).resolve().parents[1] / "training"
         ("dither_probe", ["--amplitudes", "0.05,sac", "--seeds", "1", "--workers", "1"], "| sac | "),
         ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
         ("returns_table", ["--seeds", "1", "--scenarios", "training"], "| zero residual (adaptive-dither) | "),
+        (
+            "finetune_probe",
+            ["--timesteps", "64", "--episodes", "1", "--set", "sensor_set=mixed"],
+            "| fine-tuned 64 steps, seed 0 | ",
+        ),
         (
             "recipe_probe",
             ["--stack", "2", "--timesteps", "256", "--seeds", "2", "--scenarios", "training"],
@@ -291,3 +296,20 @@ def test_reward_by_phase_splits_the_gated_policys_return_where_its_gate_opens(mo
     with pytest.raises(SystemExit):
         phases.main(["--reward-scale-m", "-1"])
     assert "reward_scale_m" in capsys.readouterr().err
+
+
+def test_finetune_probe_refuses_what_it_cannot_fine_tune(monkeypatch, capsys):
+    """A change that is not KEY=VALUE, a PPO policy and a bad env keyword are refused in one line
+    each, before any training."""
+    monkeypatch.syspath_prepend(str(TRAINING))
+    probe = importlib.import_module("finetune_probe")
+    for args, message in [
+        (["--set", "sensor_set"], "--set takes KEY=VALUE, got 'sensor_set'"),
+        (["--policy", "residual-ppo"], "policy 'residual-ppo' was trained with 'ppo', not sac"),
+        (["--set", "sensor_set=ruler"], "sensor_set"),
+        (["--episodes", "501"], "--episodes 1 to 500"),
+    ]:
+        with pytest.raises(SystemExit) as exit_:
+            probe.main(args)
+        assert exit_.value.code == 2
+        assert message in capsys.readouterr().err

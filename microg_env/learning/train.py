@@ -528,7 +528,7 @@ class _Run:
         from microg_env.analysis.summary import finite_mean
 
         normalization = model.get_vec_normalize_env()
-        policy = _NormalizedPolicy(model, normalization)
+        policy = NormalizedPolicy(model, normalization)
         runs, failure_rate, cost = self.validate(deployed_controller(policy, self.params.env_kwargs))
         row = {
             "timesteps": model.num_timesteps,
@@ -646,7 +646,7 @@ def _next_multiple(steps: int, every: int) -> int:
     return (steps // every + 1) * every
 
 
-class _NormalizedPolicy:
+class NormalizedPolicy:
     """A stable-baselines3 model reading raw observations through its VecNormalize statistics."""
 
     def __init__(self, model, normalization) -> None:
