@@ -71,6 +71,9 @@ def main(argv: list[str] | None = None) -> int:
         card = policy_card(folder)
         if card.get("algo") != "sac":
             raise ValueError(f"policy {args.policy!r} was trained with {card.get('algo')!r}, not sac")
+        for name in ("model.zip", "vecnormalize.pkl"):
+            if not (folder / name).is_file():
+                raise ValueError(f"policy {args.policy!r} has no {name} (the source tree keeps it, not the wheel)")
         env_kwargs = card["env_kwargs"] | changes(args.set)
         venv = BatchedVecEnv.make(1, **env_kwargs)
     except (ValueError, TypeError) as error:
