@@ -31,9 +31,8 @@ from microg_env.controllers.registry import (
     shipped_policy_folder,
 )
 from microg_env.interface import SENSOR_SETS
-from microg_env.learning.train import VALIDATION_SEED, NormalizedPolicy, validation_settings
+from microg_env.learning.train import NormalizedPolicy, validation_runs
 from microg_env.learning.vec_env import BatchedVecEnv
-from microg_env.rollout.batch import evaluate_batch
 
 
 def changes(pairs: list[str]) -> dict:
@@ -49,9 +48,8 @@ def changes(pairs: list[str]) -> dict:
 
 def costs(env_kwargs: dict, controller, episodes: int) -> dict[str, float]:
     """``controller``'s validation cost on each rig's sensors."""
-    seeds = range(VALIDATION_SEED, VALIDATION_SEED + episodes)
     return {
-        rig: selection_cost(evaluate_batch(validation_settings(env_kwargs | {"sensor_set": rig}), controller, seeds)[0])
+        rig: selection_cost(validation_runs(env_kwargs | {"sensor_set": rig}, controller, episodes)[0])
         for rig in SENSOR_SETS
     }
 

@@ -23,8 +23,7 @@ from microg_env.analysis.summary import finite_mean, selection_cost
 from microg_env.controllers.registry import load_policy, policy_card
 from microg_env.envs.settings import TaskSettings
 from microg_env.experiments.comparison import TEST_SEED
-from microg_env.learning.train import VALIDATION_SEED, validation_settings
-from microg_env.rollout.batch import evaluate_batch
+from microg_env.learning.train import VALIDATION_SEED, validation_runs, validation_settings
 
 #: How many validation episodes, from VALIDATION_SEED, choose the seed unless told.
 EPISODES = 200
@@ -75,7 +74,7 @@ def main(argv: list[str]) -> int:
     print("|---|---|---|---|---|---|---|---|")
     costs, line = {}, None
     for name, (controller, seed) in rows.items():
-        row = scores(evaluate_batch(settings, controller, seeds)[0])
+        row = scores(validation_runs(task, controller, args.episodes)[0])
         costs[name] = row["cost"]
         if line is None:  # the zero residual's, the first row
             line = row["collision_um"]

@@ -163,7 +163,8 @@ class LandingCore:
             name: np.isin(np.arange(len(SCALES)), [OBSERVATION_INDEX[entry] for entry in missing])
             for name, missing in SENSOR_SETS.items()
         }
-        fixed = self.sensor_set if self.sensor_set != MIXED_SENSORS else "extended"
+        self._sensors_drawn = self.sensor_set == MIXED_SENSORS
+        fixed = "extended" if self._sensors_drawn else self.sensor_set
         self._missing_by_rig = np.tile(self._missing_by_set[fixed], (num_rigs, 1))
         # a fixed set's columns (also the compiled PID loop's, which a mixed set does not run)
         self._missing = np.flatnonzero(self._missing_by_set[fixed])
@@ -300,7 +301,7 @@ class LandingCore:
         drift = params.drift
         rate = rng.uniform(-1.0, 1.0) * drift.max_temperature_rate_k_per_s if self.imperfections.balancer_drift else 0.0
         sensors = self.sensor_set
-        if sensors == MIXED_SENSORS:  # from a child of ``rng``: what ``rng`` draws stays the fixed sets'
+        if self._sensors_drawn:  # from a child of ``rng``: what ``rng`` draws stays the fixed sets'
             sensors = tuple(SENSOR_SETS)[rng.spawn(1)[0].integers(len(SENSOR_SETS))]
         return Episode(params, scenario, height, rate, sensors)
 
@@ -437,7 +438,7 @@ class LandingCore:
             and self.base is None
             and self.decision_period == 1
             and not self._hidden.size
-            and self.sensor_set != MIXED_SENSORS
+            and not self._sensors_drawn
             and mj_step is not None
         )
 
@@ -524,7 +525,7 @@ class LandingCore:
                 self._noise.exhausted |= result == 1
                 if self._missing.size:  # sensors the rig's set lacks read 0
                     self.observation[np.ix_(ids, self._missing)] = 0.0
-                elif self.sensor_set == MIXED_SENSORS:  # each rig's drawn set's
+                elif self._sensors_drawn:  # each rig's drawn set's
                     rows = self.observation[ids]
                     rows[self._missing_by_rig[ids]] = 0.0
                     self.observation[ids] = rows

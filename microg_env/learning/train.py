@@ -506,10 +506,8 @@ class _Run:
         """The runs, failure rate and cost of ``controller`` on the validation schedules, the
         episodes the rigs of one batch."""
         from microg_env.analysis.summary import selection_cost
-        from microg_env.rollout.batch import evaluate_batch
 
-        seeds = range(VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes)
-        runs, failure_rate = evaluate_batch(validation_settings(self.params.env_kwargs), controller, seeds)
+        runs, failure_rate = validation_runs(self.params.env_kwargs, controller, self.settings.eval_episodes)
         return runs, failure_rate, selection_cost(runs)
 
     def base_cost(self) -> None:
@@ -667,6 +665,15 @@ def validation_settings(env_kwargs: dict[str, Any]) -> dict[str, Any]:
     acting = ("action_mode", "base_controller", "decision_period", "hidden_observations")
     kwargs = {k: v for k, v in env_kwargs.items() if k not in acting}
     return kwargs | {"scenario_sampler": VALIDATION_SAMPLER}
+
+
+def validation_runs(env_kwargs: dict[str, Any], controller, episodes: int) -> tuple[list, float]:
+    """The metrics and failure rate of ``controller`` on the first ``episodes`` validation
+    episodes (seeds from :data:`VALIDATION_SEED`) of the task of ``env_kwargs``, in one batch."""
+    from microg_env.rollout.batch import evaluate_batch
+
+    seeds = range(VALIDATION_SEED, VALIDATION_SEED + episodes)
+    return evaluate_batch(validation_settings(env_kwargs), controller, seeds)
 
 
 def _show(value: float | None, spec: str) -> str:
