@@ -87,7 +87,7 @@ NO_DESCENT = (np.inf, np.nan, 0.0, 0.0, 0.0)
 TERMINATION_REASONS = (None, "guide_stroke_limit", "screw_stroke_limit", "pad_bottomed_out")
 _REASONS = np.array(TERMINATION_REASONS, dtype=object)  # indexed by the codes: new object arrays
 #: The true physical state (and reward) every step reports in ``info``, in this order.
-INFO_KEYS = (
+STATE_KEYS = (
     "time_s",
     "x_m",
     "foot_height_m",
@@ -106,8 +106,10 @@ INFO_KEYS = (
     "compensation_error",
     "reward_x",
     "descent_velocity_error_m_s",
-    "termination_reason",
 )
+#: What ``info`` holds: the state, why the episode terminated, and the episode's sensor set (the
+#: drawn one with ``sensor_set="mixed"``).
+INFO_KEYS = (*STATE_KEYS, "termination_reason", "sensor_set")
 
 
 @dataclass(frozen=True)
@@ -560,8 +562,8 @@ class LandingCore:
 
     def state(self, ids: np.ndarray) -> np.ndarray:
         """The true physical state of rigs ``ids``, (n, 18): one row per rig, one column per
-        :data:`INFO_KEYS` entry but the termination reason."""
-        out = np.empty((ids.size, len(INFO_KEYS) - 1))
+        :data:`STATE_KEYS` entry."""
+        out = np.empty((ids.size, len(STATE_KEYS)))
         period.state(*self._state_args(ids), out)
         return out
 
@@ -590,9 +592,10 @@ class LandingCore:
         """The true physical state of rigs ``ids`` (:data:`INFO_KEYS`), one array entry per rig; new
         arrays, so they do not change as the rigs step."""
         columns = self.state(ids).T.copy()
-        values = dict(zip(INFO_KEYS, columns, strict=False))
-        values["stage"] = columns[INFO_KEYS.index("stage")].astype(np.int64)
+        values = dict(zip(STATE_KEYS, columns, strict=True))
+        values["stage"] = columns[STATE_KEYS.index("stage")].astype(np.int64)
         values["termination_reason"] = _REASONS[codes]
+        values["sensor_set"] = np.array([self.episodes[i].sensor_set for i in ids], dtype=object)
         return values
 
 

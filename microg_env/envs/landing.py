@@ -11,7 +11,7 @@ import numpy as np
 from gymnasium.error import ResetNeeded
 
 from microg_env import validate
-from microg_env.envs.core import INFO_KEYS, TASK_ATTRIBUTES, TERMINATION_REASONS, LandingCore, check_actions
+from microg_env.envs.core import STATE_KEYS, TASK_ATTRIBUTES, TERMINATION_REASONS, LandingCore, check_actions
 from microg_env.envs.period import x_reward
 from microg_env.envs.settings import TaskSettings
 from microg_env.interface import (
@@ -143,7 +143,8 @@ class MicroGravityLandingEnv(gym.Env):
     the accelerometer reads), ``support_position_m``, ``support_velocity_m_s``,
     ``support_force_deviation_n``, ``pad_force_n``, ``placed_load_kg``, ``stage``, ``command_m_s``
     (the speed command the drive received), ``setpoint_m``, ``servo_torque_n_m``,
-    ``compensation_error``, ``reward_x``, ``descent_velocity_error_m_s`` and ``termination_reason``.
+    ``compensation_error``, ``reward_x``, ``descent_velocity_error_m_s``, ``termination_reason``
+    and ``sensor_set`` (the episode's: with ``sensor_set="mixed"``, the one drawn).
 
     Copies (``pickle``, ``cloudpickle``, ``copy.deepcopy``) carry the episode: a copy made mid-episode
     continues exactly as the original would.
@@ -259,9 +260,10 @@ class MicroGravityLandingEnv(gym.Env):
         return observation, float(reward[0]), bool(codes[0]), bool(truncated[0]), self._info(codes)
 
     def _info(self, codes: np.ndarray) -> dict[str, Any]:
-        info = dict(zip(INFO_KEYS, self.core.state(_ONE)[0].tolist(), strict=False))  # plain floats
+        info = dict(zip(STATE_KEYS, self.core.state(_ONE)[0].tolist(), strict=True))  # plain floats
         info["stage"] = int(info["stage"])
         info["termination_reason"] = TERMINATION_REASONS[codes[0]]
+        info["sensor_set"] = self.core.episodes[0].sensor_set
         return info
 
     def render(self):

@@ -217,7 +217,7 @@ def state(
     next_load, command, setpoint_m, reference_weight_n, reward_x, descent, out,
 ):  # fmt: skip
     """The true physical state of rigs ``ids``, one row of ``out`` per rig in the order of the
-    environment's ``INFO_KEYS`` (without the termination reason)."""
+    environment's ``STATE_KEYS``."""
     for j in range(ids.size):
         i = ids[j]
         x = qpos[i, qzs_qpos]

@@ -91,6 +91,14 @@ class TaskSettings:
         put("residual_highpass_hz", corner)
         put("residual_highpass_order", highpass_order(self.residual_highpass_order))
         put("residual_gate_m", residual_gate(self.residual_gate_m))
+        if self.action_mode != "residual":  # a speed action has no residual to filter or gate
+            for name, unset in (("residual_highpass_hz", 0.0), ("residual_gate_m", None)):
+                if getattr(self, name) != unset:
+                    raise FieldError(
+                        f"{name} {getattr(self, name)!r}: only action_mode='residual' has a residual "
+                        f"(action_mode is {self.action_mode!r})",
+                        name,
+                    )
         put("reward_scale_m", validate.between("reward_scale_m", self.reward_scale_m, 1e-12, 1e-3, "m"))
         put("reward_descent_weight", validate.between("reward_descent_weight", self.reward_descent_weight, 0.0, 1.0))
         scale = validate.between("reward_descent_scale_m_s", self.reward_descent_scale_m_s, 1e-12, 1e-3, "m/s")

@@ -663,7 +663,7 @@ def validation_settings(env_kwargs: dict[str, Any]) -> dict[str, Any]:
     from microg_env.scenarios import VALIDATION_SAMPLER
 
     acting = ("action_mode", "base_controller", "decision_period", "hidden_observations")
-    kwargs = {k: v for k, v in env_kwargs.items() if k not in acting}
+    kwargs = {k: v for k, v in env_kwargs.items() if k not in acting and not k.startswith("residual_")}
     return kwargs | {"scenario_sampler": VALIDATION_SAMPLER}
 
 

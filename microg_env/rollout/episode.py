@@ -17,7 +17,7 @@ from microg_env.analysis.metrics import RunMetrics, compute_metrics
 from microg_env.analysis.summary import failure_rate
 from microg_env.controllers.base import Controller, tell_plants
 from microg_env.controllers.pid import PID
-from microg_env.envs.core import INFO_KEYS, TERMINATION_REASONS
+from microg_env.envs.core import STATE_KEYS, TERMINATION_REASONS
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.scenarios import MAX_DURATION_S
 from microg_env.sim.reference import simulate_reference
@@ -89,7 +89,7 @@ def _run_pid(rig_env: MicroGravityLandingEnv, pid: PID, steps: int, on_progress)
     compiled (:meth:`~microg_env.envs.core.LandingCore.run_pid`): the same trajectory, bit for bit
     (tests/rollout/test_episode.py), at close to the physics' own speed."""
     core, rngs = rig_env.core, [rig_env.np_random]
-    states, rewards = np.empty((steps + 1, len(INFO_KEYS) - 1)), np.zeros(steps + 1)
+    states, rewards = np.empty((steps + 1, len(STATE_KEYS))), np.zeros(steps + 1)
     states[0] = core.state(np.zeros(1, dtype=np.int64))[0]  # the reset's
     done, code, reported = 0, None, 0
     while done < steps and code is None:
@@ -101,7 +101,7 @@ def _run_pid(rig_env: MicroGravityLandingEnv, pid: PID, steps: int, on_progress)
             reported += PROGRESS_EVERY
     if on_progress is not None:
         on_progress(steps - reported)
-    rows = states[: done + 1, [INFO_KEYS.index(name) for name in CHANNELS[:-1]]]
+    rows = states[: done + 1, [STATE_KEYS.index(name) for name in CHANNELS[:-1]]]
     reason = None if code is None else TERMINATION_REASONS[code]
     params = rig_env.params
     return Trajectory.from_rows(

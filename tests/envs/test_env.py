@@ -559,6 +559,8 @@ def test_bad_actions_raise(action):
         ({"residual_gate_m": "0"}, "residual_gate_m"),
         ({"residual_gate_m": True}, "residual_gate_m"),
         ({"residual_gate_m": float("nan")}, "residual_gate_m"),
+        ({"residual_gate_m": 0.0}, r"residual_gate_m 0.0: only action_mode='residual' has a residual"),  # was ignored
+        ({"residual_highpass_hz": 2.0}, r"residual_highpass_hz 2.0: only action_mode='residual'"),
         ({"hidden_observations": "height"}, "hidden_observations must be a list"),
         ({"hidden_observations": ["heights"]}, r"hidden_observations\[0\] must be one of .*got 'heights'"),
         ({"hidden_observations": ["x", ["x"]]}, r"hidden_observations\[1\] must be one of"),
@@ -723,8 +725,9 @@ def test_a_mixed_sensor_set_draws_each_episodes_set_with_equal_odds_leaving_ever
     sets = {env: [] for env in (mixed, twin)}
     for _ in range(12):
         for env, seen in sets.items():
-            env.reset()
-            seen.append(env.core.episodes[0].sensor_set)
+            _, info = env.reset()
+            assert info["sensor_set"] == env.core.episodes[0].sensor_set  # the drawn set, reported
+            seen.append(info["sensor_set"])
     assert sets[mixed] == sets[twin]
     assert set(sets[mixed]) == {"paper", "extended"}
 

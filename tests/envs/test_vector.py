@@ -39,14 +39,15 @@ GATED = {
 
 
 def _rollout(env, actions, seed):
-    """Observations, rewards, terminations, truncations and x of one env under ``actions``."""
-    out = {"obs": [], "reward": [], "terminated": [], "truncated": [], "x": [], "setpoint": []}
+    """Observations, rewards, terminations, truncations, x, setpoint and sensor set of one env under ``actions``."""
+    out = {"obs": [], "reward": [], "terminated": [], "truncated": [], "x": [], "setpoint": [], "sensor_set": []}
     obs, info = env.reset(seed=seed)
     out["obs"].append(obs)
     out["x"].append(info["x_m"])
     for action in actions:
         obs, reward, terminated, truncated, info = env.step(action)
-        for key, value in zip(out, (obs, reward, terminated, truncated, info["x_m"], info["setpoint_m"]), strict=True):
+        step = (obs, reward, terminated, truncated, info["x_m"], info["setpoint_m"], info["sensor_set"])
+        for key, value in zip(out, step, strict=True):
             out[key].append(value)
     return {key: np.array(value) for key, value in out.items()}
 
@@ -96,6 +97,7 @@ def test_each_rig_runs_exactly_the_single_envs_episode(kwargs):
     if kwargs.get("sensor_set") == "mixed":  # the rigs drew both sets
         drawn = [episode.sensor_set for episode in vector.core.episodes]
         assert sorted(set(drawn)) == ["extended", "paper"], drawn
+        assert batched["sensor_set"][-1].tolist() == drawn  # as info reports it
 
 
 def test_a_vector_env_of_one_rig_runs_on_the_batch_and_equals_the_single_env():
