@@ -79,6 +79,11 @@ RESIDUAL_HIGHPASS_RANGE_HZ = (0.0, 100.0)
 #: ``residual_gate_m``), m: from the pad's surface (the contact alone) to 0.1 m, above the paper's
 #: and training's starts (such a gate never closes before the pad).
 RESIDUAL_GATE_RANGE_M = (0.0, 0.1)
+#: What a residual's gate passes (the environment's ``residual_gate_on``): the agent's ``action``,
+#: then high-passed, so an action held before the gate opens passes it as a step; or the high-passed
+#: ``setpoint``, the action filtered throughout, so a held one has decayed by the time the gate
+#: opens and only what the action changes passes.
+RESIDUAL_GATE_STAGES = ("action", "setpoint")
 
 
 def hidden_entries(names: object) -> tuple[str, ...]:
@@ -143,6 +148,29 @@ def residual_setpoint(
     return setpoint
 
 
+def residual_gate_stage(stage: object) -> str:
+    """What a residual's gate passes (:data:`RESIDUAL_GATE_STAGES`), or a FieldError naming it."""
+    return validate.choice("residual_gate_on", stage, RESIDUAL_GATE_STAGES)
+
+
+def gated_setpoint(
+    actions: np.ndarray,
+    observations: np.ndarray,
+    ids: np.ndarray,
+    gate_m: float | None,
+    gate_on: str,
+    limit_m: float,
+    gain: float | None,
+    filter_state: tuple[np.ndarray, np.ndarray, np.ndarray | None],
+) -> np.ndarray:
+    """The x setpoints (m) of residual ``actions`` of rigs ``ids`` through the gate at ``gate_m``
+    (:func:`gated_actions`, on what ``gate_on`` names) and the high-pass (:func:`residual_setpoint`,
+    whose per-rig ``filter_state`` is its last input, last output and first stage's last output)."""
+    if gate_on == "setpoint":
+        return gated_actions(residual_setpoint(actions, ids, limit_m, gain, *filter_state), observations, gate_m)
+    return residual_setpoint(gated_actions(actions, observations, gate_m), ids, limit_m, gain, *filter_state)
+
+
 def residual_gate(gate_m: object) -> float | None:
     """A residual's gate height (:data:`RESIDUAL_GATE_RANGE_M`; None: no gate), or a FieldError
     naming it."""
@@ -150,7 +178,7 @@ def residual_gate(gate_m: object) -> float | None:
 
 
 def gated_actions(actions: np.ndarray, observations: np.ndarray, gate_m: float | None) -> np.ndarray:
-    """Residual ``actions`` as a gate at foot height ``gate_m`` passes them: each rig's action while
+    """Residual ``actions`` (or setpoints) as a gate at foot height ``gate_m`` passes them: each rig's value while
     its foot reads at most ``gate_m`` above the pad (``observations``' height entry: the servo
     encoder and the grating ruler, a reading of the paper's rig as well), else 0, so that the base
     controller alone flies the descent above it; ``actions`` themselves without a gate. The gate is

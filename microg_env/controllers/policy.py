@@ -36,12 +36,12 @@ from microg_env.interface import (
     OBSERVATION_SCALES,
     RESIDUAL_HIGHPASS_RANGE_HZ,
     RESIDUAL_LIMIT_M,
-    gated_actions,
+    gated_setpoint,
     hidden_entries,
     highpass_gain,
     highpass_order,
     residual_gate,
-    residual_setpoint,
+    residual_gate_stage,
 )
 from microg_env.params import CONTROL_PERIOD_S
 
@@ -156,9 +156,9 @@ class PolicyController(VectorController):
     is the speed command, held. With ``residual_highpass_hz`` the setpoint is the action high-passed
     (:func:`~microg_env.interface.residual_setpoint`, ``residual_highpass_order`` stages), and the
     ``hidden_observations`` read 0 to the policy, and with ``residual_gate_m`` the action acts only
-    while the foot reads at most that high (:func:`~microg_env.interface.gated_actions`), as the
-    environment's. An all-zero residual is exactly the base controller. Many rigs' observations go
-    through the policy in one batch.
+    while the foot reads at most that high (:func:`~microg_env.interface.gated_setpoint`, the gate
+    on what ``residual_gate_on`` names), as the environment's. An all-zero residual is exactly the
+    base controller. Many rigs' observations go through the policy in one batch.
     """
 
     STATE: ClassVar[dict[str, float]] = {
@@ -182,6 +182,7 @@ class PolicyController(VectorController):
         residual_highpass_order: int = 1,
         hidden_observations: tuple[str, ...] | list[str] = (),
         residual_gate_m: float | None = None,
+        residual_gate_on: str = "action",
     ) -> None:
         super().__init__(*(() if base is None else (base,)))
         self.policy = policy
@@ -194,6 +195,7 @@ class PolicyController(VectorController):
         self._second_stage = highpass_order(residual_highpass_order) == 2
         self._hidden = [OBSERVATION_INDEX[name] for name in hidden_entries(hidden_observations)]
         self.residual_gate_m = residual_gate(residual_gate_m)
+        self.residual_gate_on = residual_gate_stage(residual_gate_on)
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         due = np.empty(ids.size, dtype=np.bool_)
@@ -208,14 +210,15 @@ class PolicyController(VectorController):
             action, _ = self.policy.predict(seen, deterministic=self.deterministic)
             self._action[acting] = np.clip(np.asarray(action, dtype=np.float32).reshape(-1), -1.0, 1.0)
             if self.base is not None:
-                self.base.setpoint_m[acting] = residual_setpoint(
-                    gated_actions(self._action[acting], rows[due], self.residual_gate_m),
+                self.base.setpoint_m[acting] = gated_setpoint(
+                    self._action[acting],
+                    rows[due],
                     acting,
+                    self.residual_gate_m,
+                    self.residual_gate_on,
                     self.residual_limit_m,
                     self._residual_gain,
-                    self._filtered_action,
-                    self._setpoint_m,
-                    self._stage_m if self._second_stage else None,
+                    (self._filtered_action, self._setpoint_m, self._stage_m if self._second_stage else None),
                 )
         if self.base is None:
             return self._action[ids]

@@ -28,6 +28,7 @@ from microg_env.interface import (
     hidden_entries,
     highpass_order,
     residual_gate,
+    residual_gate_stage,
 )
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, RigParams
 from microg_env.validate import FieldError
@@ -128,6 +129,7 @@ ACTING_KEYS = (
     "residual_highpass_hz",
     "residual_highpass_order",
     "residual_gate_m",
+    "residual_gate_on",
     "hidden_observations",
 )
 
@@ -145,6 +147,7 @@ def _check_deployment(env: dict[str, Any]) -> None:
     validate.between("residual_highpass_hz", env.get("residual_highpass_hz", 0.0), *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
     highpass_order(env.get("residual_highpass_order", 1))
     residual_gate(env.get("residual_gate_m"))
+    residual_gate_stage(env.get("residual_gate_on", "action"))
     hidden_entries(env.get("hidden_observations", ()))
 
 
@@ -193,4 +196,5 @@ def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyContro
         residual_highpass_order=env_kwargs.get("residual_highpass_order", 1),
         hidden_observations=env_kwargs.get("hidden_observations", ()),
         residual_gate_m=env_kwargs.get("residual_gate_m"),
+        residual_gate_on=env_kwargs.get("residual_gate_on", "action"),
     )

@@ -35,9 +35,8 @@ from microg_env.interface import (
     OBSERVATION_INDEX,
     SCALES,
     SENSOR_SETS,
-    gated_actions,
+    gated_setpoint,
     highpass_gain,
-    residual_setpoint,
 )
 from microg_env.params import MAX_CONTROL_STEPS, RigParams
 from microg_env.scenarios import SETTLE_S, LoadStep, Scenario, ideal_descent_m_s2
@@ -74,6 +73,7 @@ TASK_ATTRIBUTES = (
     "residual_highpass_hz",
     "residual_highpass_order",
     "residual_gate_m",
+    "residual_gate_on",
     "reward_scale_m",
     "reward_descent_weight",
     "reward_descent_scale_m_s",
@@ -399,14 +399,15 @@ class LandingCore:
         (:data:`TERMINATION_REASONS`), whether each was truncated, and the periods run.
         """
         if self.base is not None:
-            self.base.setpoint_m[ids] = residual_setpoint(
-                gated_actions(actions, self.observation[ids], self.residual_gate_m),
+            self.base.setpoint_m[ids] = gated_setpoint(
+                actions,
+                self.observation[ids],
                 ids,
+                self.residual_gate_m,
+                self.residual_gate_on,
                 self.residual_limit_m,
                 self._residual_gain,
-                self.residual_action,
-                self.residual_setpoint_m,
-                self.residual_stage_m,
+                (self.residual_action, self.residual_setpoint_m, self.residual_stage_m),
             )
         n = ids.size
         total, periods = np.zeros(n), np.zeros(n, dtype=np.int64)

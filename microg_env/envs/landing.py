@@ -57,7 +57,10 @@ class MicroGravityLandingEnv(gym.Env):
       ``residual_highpass_order=2`` a steadily changing one as well. With ``residual_gate_m`` the
       action acts only at decisions whose foot reading (encoder + ruler) is at most that high
       above the pad, else it is taken as 0 (:func:`~microg_env.interface.gated_actions`): at 0 m
-      the base controller alone flies every free fall and the residual shapes the collision.
+      the base controller alone flies every free fall and the residual shapes the collision. The
+      gate passes the action, then high-passed (``residual_gate_on="action"``: an action held
+      before the gate opens enters as a step), or the high-passed setpoint (``"setpoint"``: the
+      action is filtered throughout, and only what it changes passes when the gate opens).
 
     Out-of-range values are clipped to [-1, 1]; NaN, infinite, non-numeric or wrongly shaped
     actions raise ``ValueError``. The drive interpolates its position reference at the commanded
@@ -126,6 +129,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``residual_highpass_hz`` | corner of the residual's high-pass, Hz (0: none) |
     | ``residual_highpass_order`` | its first-order stages in cascade: 1 or 2 (none without a corner) |
     | ``residual_gate_m`` | foot height at or below which the residual acts, m (None: always) |
+    | ``residual_gate_on`` | what the gate passes: ``"action"`` (then high-passed) or the high-passed ``"setpoint"`` |
     | ``imperfections`` | which non-ideal effects are on (or their flags as a dict) |
     | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
     | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force, accelerometer read 0); ``"mixed"``: drawn |

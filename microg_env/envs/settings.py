@@ -26,6 +26,7 @@ from microg_env.interface import (
     hidden_entries,
     highpass_order,
     residual_gate,
+    residual_gate_stage,
 )
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import Scenario, ScenarioSampler
@@ -53,6 +54,7 @@ class TaskSettings:
     residual_highpass_hz: float = 0.0
     residual_highpass_order: int = 1
     residual_gate_m: float | None = None
+    residual_gate_on: str = "action"
     imperfections: Imperfections | Mapping | None = None
     domain_randomization: DomainRandomization | Mapping | bool | str | None = None
     sensor_set: str = "extended"
@@ -91,9 +93,11 @@ class TaskSettings:
         put("residual_highpass_hz", corner)
         put("residual_highpass_order", highpass_order(self.residual_highpass_order))
         put("residual_gate_m", residual_gate(self.residual_gate_m))
+        residual_gate_stage(self.residual_gate_on)
         if self.action_mode != "residual":  # a speed action has no residual to filter or gate
-            for name, unset in (("residual_highpass_hz", 0.0), ("residual_gate_m", None)):
-                if getattr(self, name) != unset:
+            unset = {"residual_highpass_hz": 0.0, "residual_gate_m": None, "residual_gate_on": "action"}
+            for name, default in unset.items():
+                if getattr(self, name) != default:
                     raise FieldError(
                         f"{name} {getattr(self, name)!r}: only action_mode='residual' has a residual "
                         f"(action_mode is {self.action_mode!r})",

@@ -438,6 +438,25 @@ def test_a_residual_gated_to_the_contact_leaves_the_free_fall_to_the_base_contro
     assert not setpoints[:opened].any()
     assert setpoints[opened] == pytest.approx(highpass_gain(2.0, 5e-3) ** 2 * 3e-6, rel=1e-12)
     assert abs(xs[opened + 2] - runs[0.0][1][opened + 2]) > 1e-8  # and it moves x from there
+    # the gate on the setpoint: the held action went through the filter all along and has decayed
+    env = MicroGravityLandingEnv(**kwargs, residual_gate_on="setpoint")
+    env.reset(seed=3)
+    setpoints = [env.step(np.ones(1, dtype=np.float32))[4]["setpoint_m"] for _ in range(opened + 1)]
+    assert not any(setpoints[:opened])
+    a = highpass_gain(2.0, 5e-3)
+    expected = _step_response(a, opened + 1) * 3e-6
+    assert setpoints[opened] == pytest.approx(expected, rel=1e-9)
+    assert abs(setpoints[opened]) < 0.05 * a**2 * 3e-6  # not the step the gate on the action lets in
+
+
+def _step_response(a: float, n: int) -> float:
+    """The two-stage high-pass's output n samples after a unit step (both stages start at rest)."""
+    u_prev, w, y = 0.0, 0.0, 0.0
+    for _ in range(n):
+        w_new = a * (w + 1.0 - u_prev)
+        y = a * (y + w_new - w)
+        u_prev, w = 1.0, w_new
+    return y
 
 
 def test_the_decision_period_holds_the_action_and_steps_the_control_periods():
@@ -561,6 +580,11 @@ def test_bad_actions_raise(action):
         ({"residual_gate_m": float("nan")}, "residual_gate_m"),
         ({"residual_gate_m": 0.0}, r"residual_gate_m 0.0: only action_mode='residual' has a residual"),  # was ignored
         ({"residual_highpass_hz": 2.0}, r"residual_highpass_hz 2.0: only action_mode='residual'"),
+        (
+            {"action_mode": "residual", "residual_gate_on": "filter"},
+            r"residual_gate_on must be one of 'action', 'setpoint'",
+        ),
+        ({"residual_gate_on": "setpoint"}, r"residual_gate_on 'setpoint': only action_mode='residual'"),
         ({"hidden_observations": "height"}, "hidden_observations must be a list"),
         ({"hidden_observations": ["heights"]}, r"hidden_observations\[0\] must be one of .*got 'heights'"),
         ({"hidden_observations": ["x", ["x"]]}, r"hidden_observations\[1\] must be one of"),

@@ -160,32 +160,34 @@ def _random_policy(seed: int) -> MLPPolicy:
 
 
 @pytest.mark.parametrize(
-    ("highpass_hz", "order", "hidden", "gate"),
+    ("highpass_hz", "order", "hidden", "gate", "gate_on"),
     [
-        (0.0, 1, (), None),
-        (2.0, 1, (), None),
-        (2.0, 2, (), None),
-        (2.0, 2, ("support_position", "height"), None),
-        (2.0, 2, (), 0.053),  # condition 3 starts at 55 mm: the gate opens after about 2.2 s
-        (2.0, 2, ("support_position", "height"), 0.053),  # the gate reads the height the policy is not shown
+        (0.0, 1, (), None, "action"),
+        (2.0, 1, (), None, "action"),
+        (2.0, 2, (), None, "action"),
+        (2.0, 2, ("support_position", "height"), None, "action"),
+        (2.0, 2, (), 0.053, "action"),  # condition 3 starts at 55 mm: the gate opens after about 2.2 s
+        (2.0, 2, ("support_position", "height"), 0.053, "action"),  # the gate reads the height the policy is not shown
+        (2.0, 2, (), 0.053, "setpoint"),  # the gate on the high-passed setpoint
+        (2.0, 1, ("support_position", "height"), 0.053, "setpoint"),
     ],
 )
-def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpass_hz, order, hidden, gate):
+def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpass_hz, order, hidden, gate, gate_on):
     """The deployed composition (policy + base, decision period, rebuilt observation, the
     residual's high-pass, the entries the policy is not shown, its gate) is the training
     environment's, bit for bit, for a policy that moves the setpoint every decision; the setpoints
     are the actions (0 while a gate reads the foot above it), or at 2 Hz the actions through
     y_n = a (y_(n-1) + (u_n - u_(n-1)) 1 um) with a = tau / (tau + 5 ms), tau = 1 / (2 pi 2 Hz),
-    once or twice in cascade."""
+    once or twice in cascade, the gate on the action before the filter or on its output."""
     policy = _random_policy(3)
     highpass = {"residual_highpass_hz": highpass_hz, "residual_highpass_order": order}
     if hidden:
         highpass["hidden_observations"] = hidden
     if gate is not None:
-        highpass["residual_gate_m"] = gate
+        highpass |= {"residual_gate_m": gate, "residual_gate_on": gate_on}
     residual_env = MicroGravityLandingEnv(condition=3, **RESIDUAL, **highpass)
     observation, info = residual_env.reset(seed=4)
-    xs, commands, actions, setpoints = [], [], [], []
+    xs, commands, actions, passed, setpoints = [], [], [], [], []
     for _ in range(600):  # 3 s
         assert all(observation[OBSERVATION_INDEX[name]] == 0.0 for name in hidden)
         action = policy.predict(observation)[0]
@@ -194,10 +196,11 @@ def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpa
         observation, _, _, _, info = residual_env.step(action)
         xs.append(info["x_m"])
         commands.append(info["command_m_s"])
-        actions.append(float(action[0]) if gate is None or height_m <= gate else 0.0)
+        actions.append(float(action[0]))
+        passed.append(gate is None or height_m <= gate)
         setpoints.append(info["setpoint_m"])
     if gate is not None:
-        assert 0.1 < np.mean(np.array(actions) == 0.0) < 0.9  # the gate was shut, then open
+        assert 0.1 < np.mean(passed) < 0.9  # the gate was shut, then open
     controller = deployed_controller(policy, RESIDUAL | highpass)
     deployed = run_episode(MicroGravityLandingEnv(condition=3), controller, seed=4, duration_s=3.0)
     np.testing.assert_array_equal(deployed.x_m[5::5], np.array(xs))
@@ -205,7 +208,8 @@ def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpa
     assert np.ptp(np.array(xs)) > 1e-7  # the policy did move x
     expected, last_u, last_w, last_y = [], 0.0, 0.0, 0.0
     tau = 1.0 / (2.0 * math.pi * highpass_hz) if highpass_hz else math.inf
-    for u in actions:
+    for u, open_ in zip(actions, passed, strict=True):
+        u = u if open_ or gate_on == "setpoint" else 0.0
         if highpass_hz == 0:
             last_y = u * 1e-6
         else:
@@ -213,7 +217,7 @@ def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpa
             last_y = stage if order == 1 else tau / (tau + 5e-3) * (last_y + stage - last_w)
             last_w = stage
         last_u = u
-        expected.append(last_y)
+        expected.append(last_y if open_ or gate_on == "action" else 0.0)
     np.testing.assert_allclose(setpoints, expected, rtol=1e-9, atol=1e-18)
     assert np.ptp(setpoints) > 1e-8  # the setpoint did move
 
