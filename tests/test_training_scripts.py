@@ -157,10 +157,17 @@ def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(mo
         shutil.copytree(shipped_policy_folder(name), run / "policy")
     assert select_seed.main(["--episodes", "40", str(runs[0])]) == 0
     out = capsys.readouterr().out
-    assert out.startswith("40 validation episodes, seeds 500-539\n")
+    assert out.startswith("40 validation episodes, seeds 500-539, sensor set extended\n")
     assert "| zero residual (adaptive) |  | 0.1404 | 0.0088 | 1.316 | 1.000x | 3.723 | 0.478 |" in out
     assert f"| {runs[0]} | 1 | 0.1272 | 0.0118 | 1.153 | 0.877x | 3.404 | 0.393 |" in out
     assert out.strip().endswith(f"lowest selection cost: {runs[0]}")
+    lines = {}
+    for rig in ("extended", "paper"):  # --sensor-set: the same episodes on another rig
+        assert select_seed.main(["--episodes", "4", "--sensor-set", rig, str(runs[0])]) == 0
+        out = capsys.readouterr().out
+        assert out.startswith(f"4 validation episodes, seeds 500-503, sensor set {rig}\n")
+        lines[rig] = [line for line in out.splitlines() if line.startswith("| zero residual")]
+    assert lines["extended"] != lines["paper"]  # the base flies differently without the pad force
     with pytest.raises(SystemExit, match="trained on another task"):
         select_seed.main([str(run) for run in runs])
     with pytest.raises(SystemExit):
@@ -259,15 +266,19 @@ def test_gain_by_base_error_bins_paired_episodes_by_the_references_own_value(mon
         assert message in capsys.readouterr().err
 
 
-def test_the_both_rigs_probe_recipe_is_the_packaged_gated_recipe_on_drawn_sensor_sets():
-    """training/sac_on_both_rigs.yml differs from the packaged v5 SAC recipe in its sensor set only."""
+@pytest.mark.parametrize(
+    ("recipe", "key", "value"),
+    [("sac_on_both_rigs.yml", "sensor_set", "mixed"), ("sac_gate_on_setpoint.yml", "residual_gate_on", "setpoint")],
+)
+def test_a_probe_recipe_is_the_packaged_gated_recipe_with_one_change(recipe, key, value):
+    """Each probe recipe differs from the packaged v5 SAC recipe in its one env keyword only."""
     from microg_env.learning import hyperparams
 
     env_id = "MicroGravityLanding-Residual-v5"
-    probe = hyperparams.load("sac", env_id, TRAINING / "sac_on_both_rigs.yml").as_config()
+    probe = hyperparams.load("sac", env_id, TRAINING / recipe).as_config()
     packaged = hyperparams.load("sac", env_id).as_config()
-    assert probe["env_kwargs"].pop("sensor_set") == "mixed"
-    assert "sensor_set" not in packaged["env_kwargs"]
+    assert probe["env_kwargs"].pop(key) == value
+    assert key not in packaged["env_kwargs"]
     assert probe == packaged
 
 

@@ -4,9 +4,11 @@ validation episodes, seeds 500-699 of the validation schedules (``scenarios.VALI
 test seed. The rule is the lowest selection cost (``analysis.summary.selection_cost``: mean
 |compensation error| [%] + mean x at the collision / 10 um), the statistic the held-out comparison
 reports; the base controller alone (a zero residual) is the line, and each run's mean x at the
-collision is also given as a ratio to the zero residual's on the same episodes.
+collision is also given as a ratio to the zero residual's on the same episodes. ``--sensor-set``
+validates on another rig than the runs' own (``paper``: the paper's sensors).
 
-Run: ``python training/select_seed.py [--episodes N] logs/sac/MicroGravityLanding-Residual-v5_1 ...``
+Run: ``python training/select_seed.py [--episodes N] [--sensor-set paper]
+logs/sac/MicroGravityLanding-Residual-v5_1 ...``
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from microg_env.analysis.summary import finite_mean, selection_cost
 from microg_env.controllers.registry import load_policy, policy_card
 from microg_env.envs.settings import TaskSettings
 from microg_env.experiments.comparison import TEST_SEED
+from microg_env.interface import SENSOR_SETS
 from microg_env.learning.train import VALIDATION_SEED, validation_runs, validation_settings
 
 #: How many validation episodes, from VALIDATION_SEED, choose the seed unless told.
@@ -46,6 +49,7 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="select_seed.py", description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", metavar="RUN_FOLDER")
     parser.add_argument("--episodes", type=int, default=EPISODES, help=f"validation episodes (default {EPISODES})")
+    parser.add_argument("--sensor-set", choices=SENSOR_SETS, help="the rig to validate on (default: the runs' own)")
     args = parser.parse_args(argv)
     if not 1 <= args.episodes <= TEST_SEED - VALIDATION_SEED:
         parser.error(f"--episodes must be 1 to {TEST_SEED - VALIDATION_SEED} (no test seed), got {args.episodes}")
@@ -60,13 +64,16 @@ def main(argv: list[str]) -> int:
     for run, card in zip(runs, cards, strict=True):
         if json.dumps(card["env_kwargs"], sort_keys=True) != json.dumps(task, sort_keys=True):
             sys.exit(f"{run}: trained on another task than {runs[0]}; compare runs of one task")
+    if args.sensor_set is not None:
+        task = task | {"sensor_set": args.sensor_set}
     settings = validation_settings(task)
     period = TaskSettings(**settings).control_period_s
     seeds = range(VALIDATION_SEED, VALIDATION_SEED + args.episodes)
     rows = {f"zero residual ({task['base_controller']})": (task["base_controller"], "")}  # first: the line
     for run, card in zip(runs, cards, strict=True):
         rows[run] = (load_policy(Path(run) / "policy", period), card.get("seed", ""))
-    print(f"{args.episodes} validation episodes, seeds {seeds[0]}-{seeds[-1]}")
+    rig = task.get("sensor_set", "extended")
+    print(f"{args.episodes} validation episodes, seeds {seeds[0]}-{seeds[-1]}, sensor set {rig}")
     print(
         "| run | seed | cost | \\|compensation error\\| [%] | x, collision [um] | vs zero residual | "
         "worst x, collision [um] | x in free fall [um] |"
