@@ -26,6 +26,11 @@ TRAINING = Path(__file__).resolve().parents[1] / "training"
             "| fine-tuned 64 steps, seed 0 | ",
         ),
         (
+            "sac_probes",
+            ["--peak-weight", "20", "--set", "sensor_set=paper", "--timesteps", "64", "--episodes", "1"],
+            "| 64 | ",
+        ),
+        (
             "recipe_probe",
             ["--stack", "2", "--timesteps", "256", "--seeds", "2", "--scenarios", "training"],
             "| training | ",
@@ -100,12 +105,34 @@ def test_probe_export_acts_as_the_trained_actor(recipe_probe, tmp_path, algo, pr
             assert torch.equal(model.policy.get_distribution(full).mode(), model.policy.get_distribution(told).mode())
 
 
-def test_probe_refuses_a_privileged_sac(recipe_probe, capsys):
-    """The asymmetric critic is PPO's: ``--privileged`` with ``--algo sac`` is refused, naming both."""
-    with pytest.raises(SystemExit) as exit_:
-        recipe_probe.main(["--algo", "sac", "--privileged"])
-    assert exit_.value.code == 2
-    assert "--privileged is PPO's asymmetric actor-critic: --algo ppo" in capsys.readouterr().err
+def test_probe_refuses_a_privileged_or_stacked_sac(recipe_probe, capsys):
+    """The asymmetric critic is PPO's: ``--privileged`` with ``--algo sac`` is refused, naming both;
+    so is a stacked SAC (its replay buffer would get VecNormalize's unstacked observations), which
+    names the probe that stacks it."""
+    for args, message in [
+        (["--algo", "sac", "--privileged"], "--privileged is PPO's asymmetric actor-critic: --algo ppo"),
+        (["--algo", "sac", "--stack", "4"], "training/sac_probes.py --stack"),
+    ]:
+        with pytest.raises(SystemExit) as exit_:
+            recipe_probe.main(args)
+        assert exit_.value.code == 2
+        assert message in capsys.readouterr().err
+
+
+def test_sac_probes_refuse_what_they_cannot_run(monkeypatch, capsys):
+    """A privileged stack, a bad count or a bad env keyword: one line each, before any training."""
+    monkeypatch.syspath_prepend(str(TRAINING))
+    probes = importlib.import_module("sac_probes")
+    for args, message in [
+        (["--privileged", "--stack", "2"], "--privileged pads one observation"),
+        (["--stack", "0"], "--stack must be 1 to 16"),
+        (["--episodes", "0"], "--episodes must be 1 to 500, got 0"),
+        (["--set", "sensor_set=ruler"], "sensor_set"),
+    ]:
+        with pytest.raises(SystemExit) as exit_:
+            probes.main(args)
+        assert exit_.value.code == 2
+        assert message in capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -324,3 +351,42 @@ def test_finetune_probe_refuses_what_it_cannot_fine_tune(monkeypatch, capsys):
             probe.main(args)
         assert exit_.value.code == 2
         assert message in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("stack", "privileged"), [(3, False), (1, True)])
+def test_a_sac_probe_is_deployed_as_it_was_trained(monkeypatch, stack, privileged):
+    """The probe's deployed controller (the speed environment, a base controller, its memory) acts
+    as the model does on the residual environment's stacked (or padded) observations, bit for bit,
+    through a touchdown where the gate opens and the policy moves x."""
+    import gymnasium as gym
+    import numpy as np
+
+    from microg_env.envs.landing import MicroGravityLandingEnv
+    from microg_env.learning.train import validation_settings
+    from microg_env.rollout.episode import run_episode
+    from microg_env.scenarios import LoadStep, Scenario
+
+    monkeypatch.syspath_prepend(str(TRAINING))
+    probes = importlib.import_module("sac_probes")
+    touch = {"scenario_sampler": None, "scenario": Scenario("touch", (LoadStep(1.5),), 0.002, duration_s=0.6)}
+    kwargs = gym.spec(probes.ENV_ID).kwargs | {"domain_randomization": False}
+    model, normalized, visible = probes.build(kwargs, stack, privileged, 0.0, seed=2)
+    size = normalized.observation_space.shape[0] // stack
+    env = MicroGravityLandingEnv(**kwargs | touch)
+    history = np.zeros((stack, size), dtype=np.float32)
+    history[-1, :visible], _ = env.reset(seed=5)
+    xs, setpoints = [], []
+    for _ in range(120):
+        action, _ = model.predict(normalized.normalize_obs(history.reshape(1, -1)), deterministic=True)
+        observation, _, _, _, info = env.step(action[0])
+        history = np.roll(history, -1, axis=0)
+        history[-1] = 0.0
+        history[-1, :visible] = observation
+        xs.append(info["x_m"])
+        setpoints.append(info["setpoint_m"])
+    assert np.ptp(setpoints) > 1e-8  # the gate opened and the policy moved the setpoint
+    controller = probes.probe_controller(model, normalized, stack, visible, kwargs)
+    speed_env = MicroGravityLandingEnv(**validation_settings(kwargs) | touch)
+    deployed = run_episode(speed_env, controller, seed=5, duration_s=0.6)
+    np.testing.assert_array_equal(deployed.x_m[5::5], np.array(xs))

@@ -223,6 +223,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--stack must be at least 1, got {args.stack}")
     if args.privileged and args.algo != "ppo":
         parser.error("--privileged is PPO's asymmetric actor-critic: --algo ppo")
+    if args.algo == "sac" and args.stack != 1:
+        parser.error(
+            "--stack with --algo sac: SAC's replay buffer keeps VecNormalize's unstacked observations here; "
+            "training/sac_probes.py --stack stacks under VecNormalize"
+        )
     if args.privileged and args.stack != 1:
         parser.error("--privileged masks one observation's privileged entries: --stack 1")
     if args.out is not None and args.stack != 1:

@@ -1,0 +1,242 @@
+"""Probes of the gated SAC recipe: ``MicroGravityLanding-Residual-v5`` with the packaged sac.yml
+trained with one change, and its validation cost (``microg train``'s: ``selection_cost`` on the
+validation schedules, seeds from 500) on each rig every ``--eval-every`` steps, the base controller
+alone first. The changes:
+
+- ``--stack N``: memory. The last N decisions' observations stacked (stable-baselines3's
+  ``VecFrameStack``, under ``VecNormalize``: SAC's replay buffer keeps VecNormalize's original
+  observations, which must be the stacked ones). Deployed by a controller that keeps each rig's N
+  observations.
+- ``--privileged``: an asymmetric critic. The critics also see the episode's plant, drive and
+  schedule (``recipe_probe.privileged_features``) and the true pad force, lander acceleration and
+  x after each step (``info``); the actor's features extractor zeros them, so the deployed policy
+  reads the observation alone.
+- ``--peak-weight K``: the reward less K for each micrometre by which the first contact's running
+  peak |x| grows (the contact as ``reward_by_phase.py`` reads it, at each step's last period), so
+  an episode pays K per micrometre of that peak.
+- ``--set KEY=VALUE``: environment keyword changes (``sensor_set=paper``: train on the paper's rig).
+
+A probe, not a recipe: ``microg train`` does not take these options. docs/controllers.md ("The
+gate's step") reports seed 6 of each.
+
+Run: ``python training/sac_probes.py [--stack N | --privileged] [--peak-weight K] [--set KEY=VALUE]
+--seed 6 [--timesteps 60000] [--eval-every 20000] [--episodes 40]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import gymnasium as gym
+import numpy as np
+import torch
+from finetune_probe import changes, costs
+from recipe_probe import MaskedFlatten, privileged_features
+from stable_baselines3 import SAC
+from stable_baselines3.common.vec_env import VecEnvWrapper, VecFrameStack, VecNormalize
+from stable_baselines3.sac.policies import Actor, SACPolicy
+
+from microg_env.controllers.policy import PolicyController
+from microg_env.controllers.registry import deployed_controller, make_controller
+from microg_env.interface import SENSOR_SETS
+from microg_env.learning import hyperparams
+from microg_env.learning.vec_env import BatchedVecEnv
+
+ENV_ID = "MicroGravityLanding-Residual-v5"
+#: What the privileged critic is told after each step, from ``info``, each divided by its scale.
+LIVE = {"pad_force_n": 100.0, "lander_accel_m_s2": 0.1, "x_m": 1e-4}
+
+
+class PeakReward(VecEnvWrapper):
+    """The reward less ``weight`` per micrometre of growth of each rig's first-contact peak |x|."""
+
+    def __init__(self, venv, weight: float) -> None:
+        super().__init__(venv)
+        self.weight = weight
+        self.phase = np.zeros(venv.num_envs, dtype=np.int64)  # 0 before the contact, 1 in it, 2 after
+        self.pushed = np.zeros(venv.num_envs, dtype=bool)
+        self.peak_um = np.zeros(venv.num_envs)
+
+    def reset(self):
+        self.phase[:], self.pushed[:], self.peak_um[:] = 0, False, 0.0
+        return self.venv.reset()
+
+    def step_wait(self):
+        observations, rewards, dones, infos = self.venv.step_wait()
+        rewards = np.array(rewards, dtype=np.float64)
+        for i, info in enumerate(infos):
+            if self.phase[i] == 0 and info["foot_height_m"] < 0.0:
+                self.phase[i] = 1
+            if self.phase[i] == 1:
+                self.pushed[i] |= info["pad_force_n"] > 0.0
+                if self.pushed[i] and info["pad_force_n"] <= 0.0:
+                    self.phase[i] = 2
+                else:
+                    x_um = abs(info["x_m"]) * 1e6
+                    rewards[i] -= self.weight * max(0.0, x_um - self.peak_um[i])
+                    self.peak_um[i] = max(self.peak_um[i], x_um)
+            if dones[i]:
+                self.phase[i], self.pushed[i], self.peak_um[i] = 0, False, 0.0
+        return observations, rewards.astype(np.float32), dones, infos
+
+
+class PrivilegedObservation(VecEnvWrapper):
+    """Each rig's observation followed by its episode's ``privileged_features`` and :data:`LIVE`."""
+
+    def __init__(self, venv: BatchedVecEnv) -> None:
+        self.core = venv.env.core
+        extra = privileged_features(self.core.draw_episode(0, np.random.default_rng(0))).size + len(LIVE)
+        size = venv.observation_space.shape[0] + extra
+        super().__init__(venv, observation_space=gym.spaces.Box(-np.inf, np.inf, (size,), np.float32))
+        self.features: np.ndarray | None = None
+        self.live = np.zeros((venv.num_envs, len(LIVE)))
+
+    def _features(self, rigs) -> np.ndarray:
+        return np.array([privileged_features(self.core.episodes[i]) for i in rigs])
+
+    @staticmethod
+    def _join(observations, features, live) -> np.ndarray:
+        return np.concatenate([observations, features, live], axis=-1).astype(np.float32)
+
+    def reset(self):
+        observations = self.venv.reset()
+        self.features, self.live[:] = self._features(range(self.num_envs)), 0.0
+        return self._join(observations, self.features, self.live)
+
+    def step_wait(self):
+        observations, rewards, dones, infos = self.venv.step_wait()
+        self.live = np.array([[info[key] / scale for key, scale in LIVE.items()] for info in infos])
+        for i in np.flatnonzero(dones):
+            ended = infos[i]["terminal_observation"]
+            infos[i]["terminal_observation"] = self._join(ended, self.features[i], self.live[i])
+            self.features[i], self.live[i] = self._features([i])[0], 0.0  # the next episode's
+        return self._join(observations, self.features, self.live), rewards, dones, infos
+
+
+class AsymmetricSACPolicy(SACPolicy):
+    """SAC's MLP policy whose actor reads the first ``visible`` observation entries (the rest zeroed)
+    and whose critics read all of them."""
+
+    def __init__(self, *args, visible: int, **kwargs) -> None:
+        self.visible = visible
+        super().__init__(*args, **kwargs)
+
+    def make_actor(self, features_extractor=None) -> Actor:
+        masked = MaskedFlatten(self.observation_space, self.visible)
+        return Actor(**self._update_features_extractor(self.actor_kwargs, masked)).to(self.device)
+
+    def _get_constructor_parameters(self) -> dict:
+        return super()._get_constructor_parameters() | {"visible": self.visible}
+
+
+class ProbePolicy:
+    """The trained model on a controller's observations: each acting rig's last ``stack`` shown
+    observations (zeros before its first, as VecFrameStack at a reset), padded with zeros to the
+    privileged size, normalised."""
+
+    def __init__(self, model, normalized, stack: int, visible: int) -> None:
+        self.model, self.normalized, self.stack, self.visible = model, normalized, stack, visible
+        self.size = normalized.observation_space.shape[0] // stack
+        self.history = np.zeros((0, stack, self.size), dtype=np.float32)  # per rig, grown as rigs appear
+        self.acting = np.zeros(0, dtype=np.int64)  # the rigs of the next predict, set by the controller
+
+    def _grow(self, count: int) -> None:
+        if count > len(self.history):
+            more = np.zeros((count - len(self.history), self.stack, self.size), dtype=np.float32)
+            self.history = np.concatenate([self.history, more])
+
+    def forget(self, rigs) -> None:
+        self._grow(1 if isinstance(rigs, slice) else int(np.max(rigs, initial=-1)) + 1)
+        self.history[rigs] = 0.0
+
+    def predict(self, observations: np.ndarray, deterministic: bool = True):
+        rigs = self.acting
+        self._grow(int(np.max(rigs, initial=-1)) + 1)
+        self.history[rigs, :-1] = self.history[rigs, 1:]
+        self.history[rigs, -1] = 0.0
+        self.history[rigs, -1, : self.visible] = observations
+        stacked = self.history[rigs].reshape(rigs.size, -1)
+        return self.model.predict(self.normalized.normalize_obs(stacked), deterministic=deterministic)
+
+
+class ProbeController(PolicyController):
+    """The deployed composition of :class:`ProbePolicy`: tells it which rigs act and forgets a rig's
+    history at its reset."""
+
+    def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        self.policy.acting = ids[self._periods[ids] % self.decision_period == 0]  # count_periods' due rigs
+        return super().act(rows, ids)
+
+    def reset(self, ids: np.ndarray | None = None) -> None:
+        super().reset(ids)
+        self.policy.forget(slice(None) if ids is None else ids)
+
+
+def build(env_kwargs: dict, stack: int, privileged: bool, peak_weight: float, seed: int):
+    """The packaged recipe's SAC on ``env_kwargs`` with the probe's changes, untrained: the model,
+    its VecNormalize and how many entries the observation has (the actor's)."""
+    params = hyperparams.load("sac", ENV_ID)
+    venv = BatchedVecEnv.make(params.n_envs, **env_kwargs)
+    torch.set_num_threads(1)
+    visible = venv.observation_space.shape[0]
+    arguments = hyperparams.algo_arguments(params)
+    policy = params.policy
+    if peak_weight:
+        venv = PeakReward(venv, peak_weight)
+    if privileged:
+        venv = PrivilegedObservation(venv)
+        policy = AsymmetricSACPolicy
+        arguments["policy_kwargs"] = {**arguments.get("policy_kwargs", {}), "visible": visible}
+    if stack > 1:
+        venv = VecFrameStack(venv, stack)
+    normalized = VecNormalize(venv, **params.normalize)
+    return SAC(policy, normalized, seed=seed, device="cpu", verbose=0, **arguments), normalized, visible
+
+
+def probe_controller(model, normalized, stack: int, visible: int, env_kwargs: dict) -> ProbeController:
+    """The trained model deployed as :func:`deployed_controller` deploys a policy, with the probe's
+    memory (its class swapped for :class:`ProbeController`, which only adds the two hooks)."""
+    controller = deployed_controller(ProbePolicy(model, normalized, stack, visible), env_kwargs)
+    controller.__class__ = ProbeController
+    return controller
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--stack", type=int, default=1, help="decisions stacked (default 1: no memory)")
+    parser.add_argument("--privileged", action="store_true", help="the critics see the plant and the true state")
+    parser.add_argument("--peak-weight", type=float, default=0.0, help="reward less K per um of first-contact peak")
+    parser.add_argument("--set", action="append", default=[], help="an env keyword change, KEY=VALUE; repeat")
+    parser.add_argument("--seed", type=int, default=6)
+    parser.add_argument("--timesteps", type=int, default=60000, help="training steps (default 60000)")
+    parser.add_argument("--eval-every", type=int, default=20000, help="steps between validations (default 20000)")
+    parser.add_argument("--episodes", type=int, default=40, help="validation episodes per rig (default 40)")
+    args = parser.parse_args(argv)
+    if not 1 <= args.stack <= 16 or args.peak_weight < 0 or args.timesteps < 1 or args.eval_every < 1:
+        parser.error("--stack must be 1 to 16, --peak-weight at least 0, --timesteps and --eval-every at least 1")
+    if args.privileged and args.stack != 1:
+        parser.error("--privileged pads one observation with the critic's entries: --stack 1")
+    if not 1 <= args.episodes <= 500:
+        parser.error(f"--episodes must be 1 to 500, got {args.episodes}")
+    try:
+        env_kwargs = hyperparams.load("sac", ENV_ID).env_kwargs | changes(args.set)
+        model, normalized, visible = build(env_kwargs, args.stack, args.privileged, args.peak_weight, args.seed)
+    except (ValueError, TypeError) as error:
+        parser.error(str(error))
+    base = make_controller(env_kwargs["base_controller"], float(env_kwargs.get("control_period_s", 1e-3)))
+    print(f"validation cost, {args.episodes} episodes per rig; {vars(args)}")
+    print(f"| steps | wall [s] | {' | '.join(SENSOR_SETS)} |\n|---|---|{'---|' * len(SENSOR_SETS)}")
+    print(f"| base alone | | {' | '.join(f'{c:.4f}' for c in costs(env_kwargs, base, args.episodes).values())} |")
+    start = time.perf_counter()
+    while model.num_timesteps < args.timesteps:
+        model.learn(min(args.eval_every, args.timesteps - model.num_timesteps), reset_num_timesteps=False)
+        row = costs(env_kwargs, probe_controller(model, normalized, args.stack, visible, env_kwargs), args.episodes)
+        wall = time.perf_counter() - start
+        print(f"| {model.num_timesteps} | {wall:.0f} | {' | '.join(f'{c:.4f}' for c in row.values())} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
