@@ -314,6 +314,7 @@ def test_reward_by_phase_splits_the_gated_policys_return_where_its_gate_opens(mo
     residual's exactly, on both rigs, while it moves the first contact's peak; the table has a row
     per rig; a count of no episodes is refused."""
     import gymnasium as gym
+    import numpy as np
 
     monkeypatch.syspath_prepend(str(TRAINING))
     phases = importlib.import_module("reward_by_phase")
@@ -321,10 +322,15 @@ def test_reward_by_phase_splits_the_gated_policys_return_where_its_gate_opens(mo
     act = phases.policy_actor(env_id, "residual-sac-gated")
     for sensors in ("extended", "paper"):
         env = gym.make(env_id, sensor_set=sensors)
-        (mine, peak), (base, base_peak) = (phases.phase_returns(env, a, 1000) for a in (act, phases.zero_residual))
+        (mine, peak, opening), (base, base_peak, zero) = (
+            phases.phase_returns(env, a, 1000) for a in (act, phases.zero_residual)
+        )
         assert mine[0] == base[0] > 0
         assert mine[1] != base[1]
         assert peak != base_peak > 0
+        assert zero == 0.0  # the gate opened in the episode (NaN if not) ...
+        assert np.isfinite(opening)
+        assert opening != 0.0  # ... and passed the policy's action
     assert phases.main(["--seeds", "1"]) == 0
     rows = capsys.readouterr().out.splitlines()[3:]
     assert [row.split(" | ")[0] for row in rows] == ["| extended", "| paper"]

@@ -1,6 +1,7 @@
 """What the reward pays a learned residual for, phase by phase: its return minus the zero
 residual's on the same seeds, before the first contact, during it and after it, beside what it
-does to the first contact's peak x: means over the seeds ± their standard error.
+does to the first contact's peak x, and the action it holds when v5's gate opens (what enters the
+high-pass as a step with ``residual_gate_on="action"``): means over the seeds ± their standard error.
 
 The reward scores x in decades every control period (docs/environment.md, "Rewards"), so a
 residual that lowers the collision's peak but raises x where x is small can earn nothing for it.
@@ -20,6 +21,7 @@ Run: ``python training/reward_by_phase.py [--env MicroGravityLanding-Residual-v5
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 import gymnasium as gym
@@ -27,7 +29,7 @@ import numpy as np
 from returns_table import ENV_IDS, policy_actor
 
 from microg_env.experiments.comparison import TEST_SEED
-from microg_env.interface import SENSOR_SETS
+from microg_env.interface import OBSERVATION_INDEX, SENSOR_SETS
 
 #: The phases of an episode, in order.
 PHASES = ("before the contact", "first contact", "after it")
@@ -38,12 +40,18 @@ def zero_residual(observation: np.ndarray) -> np.ndarray:
     return np.zeros(1, dtype=np.float32)
 
 
-def phase_returns(env: gym.Env, act, seed: int) -> tuple[np.ndarray, float]:
-    """The return of each phase (:data:`PHASES`) of one episode and its first contact's peak |x|, m."""
+def phase_returns(env: gym.Env, act, seed: int) -> tuple[np.ndarray, float, float]:
+    """The return of each phase (:data:`PHASES`) of one episode, its first contact's peak |x|, m,
+    and the action at the first decision whose foot reading (the gate's, shown or not) is at or
+    below the pad, where v5's gate first passes it (NaN if none is)."""
     obs, _ = env.reset(seed=seed)
     returns, phase, peak, pushed, done = np.zeros(len(PHASES)), 0, 0.0, False, False
+    opening = math.nan
     while not done:
-        obs, reward, terminated, truncated, info = env.step(act(obs))
+        action = act(obs)
+        if math.isnan(opening) and env.unwrapped.core.observation[0, OBSERVATION_INDEX["height"]] <= 0.0:
+            opening = float(np.ravel(action)[0])
+        obs, reward, terminated, truncated, info = env.step(action)
         done = terminated or truncated
         if phase == 0 and info["foot_height_m"] < 0.0:
             phase = 1
@@ -54,7 +62,7 @@ def phase_returns(env: gym.Env, act, seed: int) -> tuple[np.ndarray, float]:
             else:
                 peak = max(peak, abs(float(info["x_m"])))
         returns[phase] += float(reward)
-    return returns, peak
+    return returns, peak, opening
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,20 +80,22 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         parser.error(f"--policy: {error}")
     print(f"{args.policy} minus the zero residual on {args.env}'s draws, {args.seeds} seeds from {TEST_SEED}")
-    print("| sensors | " + " | ".join(f"return, {phase}" for phase in PHASES) + " | peak x, first contact [um] |")
-    print("|---" * (len(PHASES) + 2) + "|")
+    columns = [f"return, {phase}" for phase in PHASES] + ["peak x, first contact [um]", "action at the gate's opening"]
+    print("| sensors | " + " | ".join(columns) + " |")
+    print("|---" * (len(columns) + 1) + "|")
     for sensors in SENSOR_SETS:
         try:
             env = gym.make(args.env, sensor_set=sensors, **scale)
         except ValueError as error:
             parser.error(str(error))
-        differences, peaks = [], []
+        differences, peaks, openings = [], [], []
         for seed in range(TEST_SEED, TEST_SEED + args.seeds):
-            (mine, peak), (base, base_peak) = phase_returns(env, act, seed), phase_returns(env, zero_residual, seed)
+            (mine, peak, opening), (base, base_peak, _) = (phase_returns(env, a, seed) for a in (act, zero_residual))
             differences.append(mine - base)
             peaks.append((peak - base_peak) * 1e6)
+            openings.append(opening)
         env.close()
-        columns = np.column_stack([np.array(differences), peaks])
+        columns = np.column_stack([np.array(differences), peaks, openings])
         error = columns.std(axis=0, ddof=1) / np.sqrt(len(columns)) if len(columns) > 1 else np.zeros(len(columns.T))
         cells = [f"{mean:+.3f} ± {se:.3f}" for mean, se in zip(columns.mean(axis=0), error, strict=True)]
         print(f"| {sensors} | " + " | ".join(cells) + " |", flush=True)
