@@ -83,7 +83,7 @@ RESIDUAL_GATE_RANGE_M = (0.0, 0.1)
 #: then high-passed, so an action held before the gate opens passes it as a step; or the high-passed
 #: ``setpoint``, the action filtered throughout, so a held one has decayed by the time the gate
 #: opens and only what the action changes passes.
-RESIDUAL_GATE_STAGES = ("action", "setpoint")
+RESIDUAL_GATE_POINTS = ("action", "setpoint")
 
 
 def hidden_entries(names: object) -> tuple[str, ...]:
@@ -148,9 +148,9 @@ def residual_setpoint(
     return setpoint
 
 
-def residual_gate_stage(stage: object) -> str:
-    """What a residual's gate passes (:data:`RESIDUAL_GATE_STAGES`), or a FieldError naming it."""
-    return validate.choice("residual_gate_on", stage, RESIDUAL_GATE_STAGES)
+def residual_gate_point(stage: object) -> str:
+    """What a residual's gate passes (:data:`RESIDUAL_GATE_POINTS`), or a FieldError naming it."""
+    return validate.choice("residual_gate_on", stage, RESIDUAL_GATE_POINTS)
 
 
 def gated_setpoint(
@@ -168,7 +168,9 @@ def gated_setpoint(
     whose per-rig ``filter_state`` is its last input, last output and first stage's last output)."""
     if gate_on == "setpoint":
         return gated_actions(residual_setpoint(actions, ids, limit_m, gain, *filter_state), observations, gate_m)
-    return residual_setpoint(gated_actions(actions, observations, gate_m), ids, limit_m, gain, *filter_state)
+    if gate_on == "action":
+        return residual_setpoint(gated_actions(actions, observations, gate_m), ids, limit_m, gain, *filter_state)
+    raise ValueError(f"gate_on must be one of {', '.join(map(repr, RESIDUAL_GATE_POINTS))}, got {gate_on!r}")
 
 
 def residual_gate(gate_m: object) -> float | None:
@@ -178,10 +180,11 @@ def residual_gate(gate_m: object) -> float | None:
 
 
 def gated_actions(actions: np.ndarray, observations: np.ndarray, gate_m: float | None) -> np.ndarray:
-    """Residual ``actions`` (or setpoints) as a gate at foot height ``gate_m`` passes them: each rig's value while
-    its foot reads at most ``gate_m`` above the pad (``observations``' height entry: the servo
-    encoder and the grating ruler, a reading of the paper's rig as well), else 0, so that the base
-    controller alone flies the descent above it; ``actions`` themselves without a gate. The gate is
+    """Residual ``actions`` (or setpoints) as a gate at foot height ``gate_m`` passes them: each
+    rig's value while its foot reads at most ``gate_m`` above the pad (``observations``' height
+    entry: the servo encoder and the grating ruler, a reading of the paper's rig as well), else 0,
+    so that the base controller alone flies the descent above it; ``actions`` themselves without a
+    gate. The gate is
     compared in the observation's own float32 units (whatever array holds the readings), so a foot
     exactly at the gate reads at it."""
     if gate_m is None:

@@ -29,7 +29,7 @@ import numpy as np
 from returns_table import ENV_IDS, policy_actor
 
 from microg_env.experiments.comparison import TEST_SEED
-from microg_env.interface import OBSERVATION_INDEX, SENSOR_SETS
+from microg_env.interface import SENSOR_SETS, gated_actions
 
 #: The phases of an episode, in order.
 PHASES = ("before the contact", "first contact", "after it")
@@ -42,14 +42,15 @@ def zero_residual(observation: np.ndarray) -> np.ndarray:
 
 def phase_returns(env: gym.Env, act, seed: int) -> tuple[np.ndarray, float, float]:
     """The return of each phase (:data:`PHASES`) of one episode, its first contact's peak |x|, m,
-    and the action at the first decision whose foot reading (the gate's, shown or not) is at or
-    below the pad, where v5's gate first passes it (NaN if none is)."""
+    and the action at the first decision the environment's gate passes (NaN without a gate, or if
+    it never opens)."""
     obs, _ = env.reset(seed=seed)
     returns, phase, peak, pushed, done = np.zeros(len(PHASES)), 0, 0.0, False, False
-    opening = math.nan
+    opening, gate_m = math.nan, env.unwrapped.residual_gate_m
     while not done:
         action = act(obs)
-        if math.isnan(opening) and env.unwrapped.core.observation[0, OBSERVATION_INDEX["height"]] <= 0.0:
+        gate_open = gate_m is not None and gated_actions(np.ones(1), env.unwrapped.core.observation[:1], gate_m)[0]
+        if gate_open and math.isnan(opening):  # the gate's own reading and comparison
             opening = float(np.ravel(action)[0])
         obs, reward, terminated, truncated, info = env.step(action)
         done = terminated or truncated
@@ -80,9 +81,10 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         parser.error(f"--policy: {error}")
     print(f"{args.policy} minus the zero residual on {args.env}'s draws, {args.seeds} seeds from {TEST_SEED}")
-    columns = [f"return, {phase}" for phase in PHASES] + ["peak x, first contact [um]", "action at the gate's opening"]
-    print("| sensors | " + " | ".join(columns) + " |")
-    print("|---" * (len(columns) + 1) + "|")
+    header = [f"return, {phase}" for phase in PHASES] + ["peak x, first contact [um]"]
+    header.append("the policy's action at the gate's opening (itself, not a difference)")
+    print("| sensors | " + " | ".join(header) + " |")
+    print("|---" * (len(header) + 1) + "|")
     for sensors in SENSOR_SETS:
         try:
             env = gym.make(args.env, sensor_set=sensors, **scale)

@@ -43,6 +43,7 @@ from microg_env.controllers.registry import deployed_controller, make_controller
 from microg_env.interface import SENSOR_SETS
 from microg_env.learning import hyperparams
 from microg_env.learning.vec_env import BatchedVecEnv
+from microg_env.params import CONTROL_PERIOD_S
 
 ENV_ID = "MicroGravityLanding-Residual-v5"
 #: What the privileged critic is told after each step, from ``info``, each divided by its scale.
@@ -214,8 +215,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--eval-every", type=int, default=20000, help="steps between validations (default 20000)")
     parser.add_argument("--episodes", type=int, default=40, help="validation episodes per rig (default 40)")
     args = parser.parse_args(argv)
-    if not 1 <= args.stack <= 16 or args.peak_weight < 0 or args.timesteps < 1 or args.eval_every < 1:
-        parser.error("--stack must be 1 to 16, --peak-weight at least 0, --timesteps and --eval-every at least 1")
+    if not 1 <= args.stack <= 16:
+        parser.error(f"--stack must be 1 to 16, got {args.stack}")
+    if not args.peak_weight >= 0:  # NaN too
+        parser.error(f"--peak-weight must be at least 0, got {args.peak_weight}")
+    if args.timesteps < 1 or args.eval_every < 1:
+        parser.error(f"--timesteps and --eval-every must be at least 1, got {args.timesteps}, {args.eval_every}")
     if args.privileged and args.stack != 1:
         parser.error("--privileged pads one observation with the critic's entries: --stack 1")
     if not 1 <= args.episodes <= 500:
@@ -225,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
         model, normalized, visible = build(env_kwargs, args.stack, args.privileged, args.peak_weight, args.seed)
     except (ValueError, TypeError) as error:
         parser.error(str(error))
-    base = make_controller(env_kwargs["base_controller"], float(env_kwargs.get("control_period_s", 1e-3)))
+    base = make_controller(env_kwargs["base_controller"], float(env_kwargs.get("control_period_s", CONTROL_PERIOD_S)))
     print(f"validation cost, {args.episodes} episodes per rig; {vars(args)}")
     print(f"| steps | wall [s] | {' | '.join(SENSOR_SETS)} |\n|---|---|{'---|' * len(SENSOR_SETS)}")
     print(f"| base alone | | {' | '.join(f'{c:.4f}' for c in costs(env_kwargs, base, args.episodes).values())} |")

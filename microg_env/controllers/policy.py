@@ -41,7 +41,7 @@ from microg_env.interface import (
     highpass_gain,
     highpass_order,
     residual_gate,
-    residual_gate_stage,
+    residual_gate_point,
 )
 from microg_env.params import CONTROL_PERIOD_S
 
@@ -195,7 +195,7 @@ class PolicyController(VectorController):
         self._second_stage = highpass_order(residual_highpass_order) == 2
         self._hidden = [OBSERVATION_INDEX[name] for name in hidden_entries(hidden_observations)]
         self.residual_gate_m = residual_gate(residual_gate_m)
-        self.residual_gate_on = residual_gate_stage(residual_gate_on)
+        self.residual_gate_on = residual_gate_point(residual_gate_on)
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         due = np.empty(ids.size, dtype=np.bool_)

@@ -28,7 +28,7 @@ from microg_env.interface import (
     hidden_entries,
     highpass_order,
     residual_gate,
-    residual_gate_stage,
+    residual_gate_point,
 )
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, RigParams
 from microg_env.validate import FieldError
@@ -147,7 +147,7 @@ def _check_deployment(env: dict[str, Any]) -> None:
     validate.between("residual_highpass_hz", env.get("residual_highpass_hz", 0.0), *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
     highpass_order(env.get("residual_highpass_order", 1))
     residual_gate(env.get("residual_gate_m"))
-    residual_gate_stage(env.get("residual_gate_on", "action"))
+    residual_gate_point(env.get("residual_gate_on", "action"))
     hidden_entries(env.get("hidden_observations", ()))
 
 

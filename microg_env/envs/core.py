@@ -168,6 +168,7 @@ class LandingCore:
         self._sensors_drawn = self.sensor_set == MIXED_SENSORS
         fixed = "extended" if self._sensors_drawn else self.sensor_set
         self._missing_by_rig = np.tile(self._missing_by_set[fixed], (num_rigs, 1))
+        self._sensor_set_by_rig = np.full(num_rigs, fixed, dtype=object)  # each episode's, for info
         # a fixed set's columns (also the compiled PID loop's, which a mixed set does not run)
         self._missing = np.flatnonzero(self._missing_by_set[fixed])
         self._hidden = np.array([OBSERVATION_INDEX[name] for name in self.hidden_observations], dtype=np.int64)
@@ -337,6 +338,7 @@ class LandingCore:
             self.gravity[i] = episode.params.gravity_m_s2
             self.trim_height_m[i] = episode.height_m
             self._missing_by_rig[i] = self._missing_by_set[episode.sensor_set]
+            self._sensor_set_by_rig[i] = episode.sensor_set
         physics.reset(ids)
         for i, episode in zip(ids, episodes, strict=True):
             for name, index, value in rig.start_state(episode.params, episode.height_m):
@@ -590,13 +592,14 @@ class LandingCore:
         return observations
 
     def info(self, ids: np.ndarray, codes: np.ndarray) -> dict[str, np.ndarray]:
-        """The true physical state of rigs ``ids`` (:data:`INFO_KEYS`), one array entry per rig; new
-        arrays, so they do not change as the rigs step."""
+        """What ``info`` reports of rigs ``ids`` (:data:`INFO_KEYS`: the true physical state, the
+        termination reason, the sensor set), one array entry per rig; new arrays, so they do not
+        change as the rigs step."""
         columns = self.state(ids).T.copy()
         values = dict(zip(STATE_KEYS, columns, strict=True))
         values["stage"] = columns[STATE_KEYS.index("stage")].astype(np.int64)
         values["termination_reason"] = _REASONS[codes]
-        values["sensor_set"] = np.array([self.episodes[i].sensor_set for i in ids], dtype=object)
+        values["sensor_set"] = self._sensor_set_by_rig[ids]
         return values
 
 

@@ -9,7 +9,7 @@ to :class:`~microg_env.envs.core.LandingCore`. Times are seconds and lengths met
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ from microg_env.interface import (
     hidden_entries,
     highpass_order,
     residual_gate,
-    residual_gate_stage,
+    residual_gate_point,
 )
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
 from microg_env.scenarios import Scenario, ScenarioSampler
@@ -93,15 +93,19 @@ class TaskSettings:
         put("residual_highpass_hz", corner)
         put("residual_highpass_order", highpass_order(self.residual_highpass_order))
         put("residual_gate_m", residual_gate(self.residual_gate_m))
-        residual_gate_stage(self.residual_gate_on)
-        if self.action_mode != "residual":  # a speed action has no residual to filter or gate
-            unset = {"residual_highpass_hz": 0.0, "residual_gate_m": None, "residual_gate_on": "action"}
-            for name, default in unset.items():
-                if getattr(self, name) != default:
+        put("residual_gate_on", residual_gate_point(self.residual_gate_on))
+        if self.residual_gate_on != "action" and self.residual_gate_m is None:
+            raise FieldError(
+                f"residual_gate_on {self.residual_gate_on!r}: there is no gate to place (residual_gate_m is None)",
+                "residual_gate_on",
+            )
+        if self.action_mode != "residual":  # a speed action has no residual to scale, filter or gate
+            for option in fields(self):
+                if option.name.startswith("residual_") and getattr(self, option.name) != option.default:
                     raise FieldError(
-                        f"{name} {getattr(self, name)!r}: only action_mode='residual' has a residual "
-                        f"(action_mode is {self.action_mode!r})",
-                        name,
+                        f"{option.name} {getattr(self, option.name)!r}: only action_mode='residual' has a "
+                        f"residual (action_mode is {self.action_mode!r})",
+                        option.name,
                     )
         put("reward_scale_m", validate.between("reward_scale_m", self.reward_scale_m, 1e-12, 1e-3, "m"))
         put("reward_descent_weight", validate.between("reward_descent_weight", self.reward_descent_weight, 0.0, 1.0))

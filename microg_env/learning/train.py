@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from microg_env.controllers.registry import deployed_controller, make_controller
+from microg_env.controllers.registry import ACTING_KEYS, deployed_controller, make_controller
 from microg_env.files import atomic_path, folder_lock, read_settings_text, read_yaml, write_text
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import write_policy_folder
@@ -657,13 +657,13 @@ class NormalizedPolicy:
 
 
 def validation_settings(env_kwargs: dict[str, Any]) -> dict[str, Any]:
-    """The training environment's settings with the speed action and every sensor shown (a
-    deployed policy's controller composes the residual and hides what the policy is not shown
-    itself) and the validation schedules; no id's registered defaults (a residual action) come back."""
+    """The training environment's settings without how the policy acts (the registry's
+    ``ACTING_KEYS``: the speed action, every sensor shown, no residual; a deployed policy's
+    controller composes the residual and hides what the policy is not shown itself) and with the
+    validation schedules; no id's registered defaults (a residual action) come back."""
     from microg_env.scenarios import VALIDATION_SAMPLER
 
-    acting = ("action_mode", "base_controller", "decision_period", "hidden_observations")
-    kwargs = {k: v for k, v in env_kwargs.items() if k not in acting and not k.startswith("residual_")}
+    kwargs = {k: v for k, v in env_kwargs.items() if k not in ACTING_KEYS}
     return kwargs | {"scenario_sampler": VALIDATION_SAMPLER}
 
 
