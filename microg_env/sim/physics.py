@@ -11,9 +11,15 @@ code path for one rig and for many:
 
 MuJoCo promises the batch bit-identical to a loop of ``mj_step``; the batch is persistent so that
 its sensors and accelerations are those of the last substep, as ``MjData``'s are.
+
+A forked child inherits every batch of its parent but none of their threads, and freeing such a
+batch waits on those threads for ever: a child keeps its inherited batches until it exits.
 """
 
 from __future__ import annotations
+
+import os
+import weakref
 
 import mujoco
 import mujoco.batch
@@ -65,6 +71,19 @@ class ModelPhysics:
         self._bind()
 
 
+#: Every live :class:`BatchPhysics` of this process, and the batches a forked child inherited
+#: (kept, never freed: see the module's docstring).
+_LIVE_BATCHES: weakref.WeakSet[BatchPhysics] = weakref.WeakSet()
+_INHERITED_BATCHES: list[mujoco.batch.Batch] = []
+
+
+def _keep_inherited_batches() -> None:
+    _INHERITED_BATCHES.extend(physics.batch for physics in _LIVE_BATCHES)
+
+
+os.register_at_fork(after_in_child=_keep_inherited_batches)
+
+
 class BatchPhysics:
     """N rigs on a persistent :class:`mujoco.batch.Batch` of ``model`` on ``nthread`` threads (0: all)."""
 
@@ -72,6 +91,7 @@ class BatchPhysics:
         self.model = model
         self.num_rigs = num_rigs
         self.batch = mujoco.batch.Batch(model, num_rigs, nthread=nthread, persistent=True)
+        _LIVE_BATCHES.add(self)
         for name in STATE_FIELDS:
             setattr(self, name, self.batch.bind(name))
         self._fields: dict[str, np.ndarray] = {}

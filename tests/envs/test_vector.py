@@ -2,7 +2,10 @@
 contract (against SyncVectorEnv), stable-baselines3's VecEnv contract, batched comparisons."""
 
 import copy
+import gc
+import os
 import pickle
+import time
 from dataclasses import replace
 from functools import partial
 
@@ -98,6 +101,28 @@ def test_each_rig_runs_exactly_the_single_envs_episode(kwargs):
         drawn = [episode.sensor_set for episode in vector.core.episodes]
         assert sorted(set(drawn)) == ["extended", "paper"], drawn
         assert batched["sensor_set"][-1].tolist() == drawn  # as info reports it
+
+
+def test_a_forked_child_that_drops_an_inherited_batch_exits():
+    """A forked child has none of its parent batch's threads; freeing the batch used to wait for them
+    for ever (CI hung so, in a pool a training script forked from a test worker): now it exits."""
+    vector = MicroGravityLandingVectorEnv(4, condition=3, nthread=2)
+    vector.reset(seed=1)
+    vector.step(np.zeros((4, 1), np.float32))
+    child = os.fork()
+    if child == 0:  # pragma: no cover (the child's coverage is not collected)
+        del vector
+        gc.collect()
+        os._exit(0)
+    deadline = time.monotonic() + 60
+    while (ended := os.waitpid(child, os.WNOHANG))[0] == 0 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if ended[0] == 0:
+        os.kill(child, 9)
+        os.waitpid(child, 0)
+    assert ended[0] == child, "the child hung"
+    assert os.waitstatus_to_exitcode(ended[1]) == 0
+    vector.close()
 
 
 def test_a_vector_env_of_one_rig_runs_on_the_batch_and_equals_the_single_env():

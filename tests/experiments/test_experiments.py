@@ -4,7 +4,6 @@ separately started cluster)."""
 from __future__ import annotations
 
 import contextlib
-import gc
 import itertools
 import json
 import math
@@ -660,9 +659,6 @@ def test_run_each_simulates_a_reference_its_runs_share_once(tmp_path, monkeypatc
     fork = multiprocessing.get_context("fork")
     monkeypatch.setattr(runner, "process_pool", lambda workers: ProcessPoolExecutor(workers, mp_context=fork))
     specs = [RunSpec("condition-2", "pid", seed, duration_s=0.3 + 0.1 * seed) for seed in range(4)]
-    # a batch an earlier test of this process left in a reference cycle is freed here, not in a
-    # forked child, where its thread pool's threads do not exist and freeing it hangs
-    gc.collect()
     parallel = run_each(specs, workers=2)
     assert calls.read_text().split() == ["600"]  # the longest run's 0.6 s at 1 kHz
     calls.unlink()
