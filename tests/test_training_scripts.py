@@ -220,6 +220,32 @@ def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):
     assert captured.out == ""
 
 
+def test_returns_table_reads_a_cards_left_out_acting_key_as_its_default(tmp_path, monkeypatch):
+    """A card that writes a default (v5's gate on the action) used to be refused on v5, whose spec
+    leaves it out; a card whose gate is elsewhere is still refused."""
+    import json
+    import shutil
+
+    from microg_env.controllers.policy import CARD_FILE
+    from microg_env.controllers.registry import shipped_policy_folder
+
+    monkeypatch.syspath_prepend(str(TRAINING))
+    returns_table = importlib.import_module("returns_table")
+    folder = tmp_path / "explicit"
+    shutil.copytree(shipped_policy_folder("residual-sac-gated"), folder)
+    card = json.loads((folder / CARD_FILE).read_text())
+    assert "residual_gate_on" not in card["env_kwargs"]
+    card["env_kwargs"]["residual_gate_on"] = "action"
+    (folder / CARD_FILE).write_text(json.dumps(card))
+    returns_table.policy_actor("MicroGravityLanding-Residual-v5", str(folder))
+    card["env_kwargs"]["residual_gate_on"] = "setpoint"
+    (folder / CARD_FILE).write_text(json.dumps(card))
+    with pytest.raises(
+        ValueError, match="trained with residual_gate_on 'setpoint', not MicroGravityLanding-Residual-v5's 'action'"
+    ):
+        returns_table.policy_actor("MicroGravityLanding-Residual-v5", str(folder))
+
+
 def test_the_dither_probe_recipe_is_the_packaged_sac_recipe_on_the_dithered_base():
     """training/sac_on_dither.yml (docs/controllers.md's SAC on `adaptive-dither`) differs from the
     packaged v4 SAC recipe in its base controller only."""

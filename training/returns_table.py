@@ -34,6 +34,7 @@ from microg_env.controllers.registry import (
     is_policy_folder,
     shipped_policy_folder,
 )
+from microg_env.envs.settings import TaskSettings
 from microg_env.experiments.comparison import TEST_SEED
 from microg_env.learning.train import ENV_IDS as TRAINED_IDS
 from microg_env.scenarios import comparison_scenarios
@@ -78,19 +79,25 @@ def policy_actor(env_id: str, name: str) -> Callable[[np.ndarray], np.ndarray]:
     """The deterministic action of the policy ``name`` (shipped or a folder) trained on ``env_id``'s task."""
     folder = name if is_policy_folder(name) else shipped_policy_folder(name)
     card, policy = check_policy_folder(folder)
-    env = card["env_kwargs"]
-    task = gym.spec(env_id).kwargs
+    trained, task = _acting(card["env_kwargs"]), _acting(gym.spec(env_id).kwargs)
     for key in ACTING_KEYS:
-        if _plain(env.get(key)) != _plain(task.get(key)):
+        if trained[key] != task[key]:
             raise ValueError(
-                f"policy {name!r} was trained with {key} {env.get(key)!r}, not {env_id}'s {task.get(key)!r}"
+                f"policy {name!r} was trained with {key} {_shown(trained[key])!r}, not {env_id}'s {_shown(task[key])!r}"
             )
     return lambda obs: policy.predict(obs, deterministic=True)[0].reshape(-1)
 
 
-def _plain(value: object) -> object:
-    """A setting as compared: a list of names (JSON keeps a tuple as a list) as the set of them."""
-    return frozenset(value) if isinstance(value, list | tuple) else value
+def _acting(env_kwargs: dict) -> dict[str, object]:
+    """The acting settings of ``env_kwargs`` as compared: a key left out as its default, a list of
+    names (JSON keeps a tuple as a list) as the set of them."""
+    settings = TaskSettings(**{key: env_kwargs[key] for key in ACTING_KEYS if key in env_kwargs})
+    values = {key: getattr(settings, key) for key in ACTING_KEYS}
+    return {key: frozenset(value) if isinstance(value, tuple) else value for key, value in values.items()}
+
+
+def _shown(value: object) -> object:
+    return sorted(value) if isinstance(value, frozenset) else value
 
 
 def returns(env_id: str, row: str, scenario: str, seeds: int) -> list[float]:
