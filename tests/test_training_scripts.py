@@ -427,3 +427,31 @@ def test_a_sac_probe_is_deployed_as_it_was_trained(monkeypatch, stack, privilege
     for _ in range(2):  # a second episode: the controller forgot the first one's history at its reset
         deployed = run_episode(speed_env, controller, seed=5, duration_s=0.6)
         np.testing.assert_array_equal(deployed.x_m[5::5], np.array(xs))
+
+
+def test_the_peak_reward_charges_the_first_contacts_peak_as_reward_by_phase_reads_it(monkeypatch):
+    """Over an episode, sac_probes' PeakReward takes ``weight`` per micrometre of the first contact's
+    peak |x| from the return: the peak ``reward_by_phase.phase_returns`` reads on the single env of
+    the same seed (the vector env's rig i is it, bit for bit)."""
+    import gymnasium as gym
+    import numpy as np
+
+    from microg_env.learning.vec_env import BatchedVecEnv
+
+    monkeypatch.syspath_prepend(str(TRAINING))
+    probes = importlib.import_module("sac_probes")
+    phases = importlib.import_module("reward_by_phase")
+    kwargs = gym.spec(probes.ENV_ID).kwargs
+    venv = probes.PeakReward(BatchedVecEnv.make(2, **kwargs), weight=20.0)
+    venv.seed(1000)
+    venv.reset()
+    returns, running = np.zeros(2), np.ones(2, dtype=bool)
+    while running.any():
+        _, rewards, dones, _ = venv.step(np.zeros((2, 1), dtype=np.float32))
+        returns += np.where(running, rewards, 0.0)
+        running &= ~dones
+    env = gym.make(probes.ENV_ID)
+    for rig in range(2):
+        plain, peak_m, _ = phases.phase_returns(env, phases.zero_residual, 1000 + rig)
+        assert peak_m > 2e-7  # a contact whose peak the charge can be told from
+        assert returns[rig] == pytest.approx(plain.sum() - 20.0 * peak_m * 1e6, abs=1e-3)

@@ -30,6 +30,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 import gymnasium as gym
@@ -76,41 +77,52 @@ def privileged_features(episode: Episode) -> np.ndarray:
 
 class ProbeObservation(VecEnvWrapper):
     """The batched env's observations with the ``blind`` entries zeroed and, if ``privileged``, each
-    rig's :func:`privileged_features` appended (an ended episode's terminal observation with its own)."""
+    rig's :func:`privileged_features` appended (an ended episode's terminal observation with its
+    own), then the ``live`` info entries after each step, each divided by its scale (zeros after a
+    reset)."""
 
-    def __init__(self, venv: BatchedVecEnv, blind: list[int], privileged: bool) -> None:
-        self.blind, self.privileged = blind, privileged
+    def __init__(
+        self, venv: BatchedVecEnv, blind: list[int], privileged: bool, live: Mapping[str, float] | None = None
+    ) -> None:
+        self.blind, self.privileged, self.live = blind, privileged, dict(live or {})
         drawn = venv.env.core.draw_episode(0, np.random.default_rng(0))  # any episode: the features' size
         size = venv.observation_space.shape[0] + (privileged_features(drawn).size if privileged else 0)
-        space = gym.spaces.Box(-np.inf, np.inf, (size,), np.float32)
+        space = gym.spaces.Box(-np.inf, np.inf, (size + len(self.live),), np.float32)
         super().__init__(venv, observation_space=space)
         self._features: np.ndarray | None = None  # each rig's current episode's, once drawn
+        self._readings = np.zeros((venv.num_envs, len(self.live)))  # each rig's last step's live entries
 
     def _features_of(self, rigs: np.ndarray) -> np.ndarray:
         return np.array([privileged_features(self.venv.env.core.episodes[i]) for i in rigs])
 
-    def _augment(self, observations: np.ndarray, features: np.ndarray | None) -> np.ndarray:
+    def _augment(self, observations: np.ndarray, features: np.ndarray | None, readings: np.ndarray) -> np.ndarray:
         observations = np.array(observations, dtype=np.float32)
         observations[..., self.blind] = 0.0
         if self.privileged:
             observations = np.concatenate([observations, features.astype(np.float32)], axis=-1)
-        return observations
+        return np.concatenate([observations, readings.astype(np.float32)], axis=-1)
 
     def reset(self) -> np.ndarray:
         observations = self.venv.reset()
         if self.privileged:
             self._features = self._features_of(np.arange(self.num_envs))
-        return self._augment(observations, self._features)
+        self._readings[:] = 0.0
+        return self._augment(observations, self._features, self._readings)
 
     def step_wait(self):
         observations, rewards, dones, infos = self.venv.step_wait()
+        if self.live:
+            self._readings = np.array([[info[key] / scale for key, scale in self.live.items()] for info in infos])
         ended = np.flatnonzero(dones)
         for i in ended:
             ending = self._features[i] if self.privileged else None
-            infos[i]["terminal_observation"] = self._augment(infos[i]["terminal_observation"], ending)
+            infos[i]["terminal_observation"] = self._augment(
+                infos[i]["terminal_observation"], ending, self._readings[i]
+            )
         if self.privileged and ended.size:  # the ended rigs' next episodes
             self._features[ended] = self._features_of(ended)
-        return self._augment(observations, self._features), rewards, dones, infos
+        self._readings[ended] = 0.0
+        return self._augment(observations, self._features, self._readings), rewards, dones, infos
 
 
 class MaskedFlatten(FlattenExtractor):

@@ -40,12 +40,33 @@ def zero_residual(observation: np.ndarray) -> np.ndarray:
     return np.zeros(1, dtype=np.float32)
 
 
+class FirstContact:
+    """Each of ``num_rigs`` rigs' phase (an index into :data:`PHASES`), from the readings at each
+    step's last control period: the contact from the foot's first reading below the pad's surface to
+    the first reading after it with no pad force."""
+
+    def __init__(self, num_rigs: int) -> None:
+        self.phase = np.zeros(num_rigs, dtype=np.int64)
+        self.pushed = np.zeros(num_rigs, dtype=bool)
+
+    def update(self, foot_height_m: np.ndarray, pad_force_n: np.ndarray) -> np.ndarray:
+        """Each rig's phase after a step's readings; returns whether each is in the first contact."""
+        self.phase[(self.phase == 0) & (foot_height_m < 0.0)] = 1
+        touching = self.phase == 1
+        self.pushed |= touching & (pad_force_n > 0.0)
+        self.phase[touching & self.pushed & (pad_force_n <= 0.0)] = 2
+        return self.phase == 1
+
+    def reset(self, rigs) -> None:
+        self.phase[rigs], self.pushed[rigs] = 0, False
+
+
 def phase_returns(env: gym.Env, act, seed: int) -> tuple[np.ndarray, float, float]:
     """The return of each phase (:data:`PHASES`) of one episode, its first contact's peak |x|, m,
     and the action at the first decision the environment's gate passes (NaN without a gate, or if
     it never opens)."""
     obs, _ = env.reset(seed=seed)
-    returns, phase, peak, pushed, done = np.zeros(len(PHASES)), 0, 0.0, False, False
+    returns, contact, peak, done = np.zeros(len(PHASES)), FirstContact(1), 0.0, False
     opening, gate_m = math.nan, env.unwrapped.residual_gate_m
     while not done:
         action = act(obs)
@@ -54,15 +75,9 @@ def phase_returns(env: gym.Env, act, seed: int) -> tuple[np.ndarray, float, floa
             opening = float(np.ravel(action)[0])
         obs, reward, terminated, truncated, info = env.step(action)
         done = terminated or truncated
-        if phase == 0 and info["foot_height_m"] < 0.0:
-            phase = 1
-        if phase == 1:
-            pushed |= info["pad_force_n"] > 0.0
-            if pushed and info["pad_force_n"] <= 0.0:
-                phase = 2
-            else:
-                peak = max(peak, abs(float(info["x_m"])))
-        returns[phase] += float(reward)
+        if contact.update(np.array([info["foot_height_m"]]), np.array([info["pad_force_n"]]))[0]:
+            peak = max(peak, abs(float(info["x_m"])))
+        returns[contact.phase[0]] += float(reward)
     return returns, peak, opening
 
 

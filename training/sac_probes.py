@@ -29,11 +29,11 @@ import argparse
 import sys
 import time
 
-import gymnasium as gym
 import numpy as np
 import torch
 from finetune_probe import changes, costs
-from recipe_probe import MaskedFlatten, privileged_features
+from recipe_probe import MaskedFlatten, ProbeObservation
+from reward_by_phase import FirstContact
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecEnvWrapper, VecFrameStack, VecNormalize
 from stable_baselines3.sac.policies import Actor, SACPolicy
@@ -51,69 +51,35 @@ LIVE = {"pad_force_n": 100.0, "lander_accel_m_s2": 0.1, "x_m": 1e-4}
 
 
 class PeakReward(VecEnvWrapper):
-    """The reward less ``weight`` per micrometre of growth of each rig's first-contact peak |x|."""
+    """The reward less ``weight`` per micrometre of growth of each rig's first-contact peak |x|
+    (the contact as ``reward_by_phase.FirstContact`` reads it)."""
 
     def __init__(self, venv, weight: float) -> None:
         super().__init__(venv)
         self.weight = weight
-        self.phase = np.zeros(venv.num_envs, dtype=np.int64)  # 0 before the contact, 1 in it, 2 after
-        self.pushed = np.zeros(venv.num_envs, dtype=bool)
+        self.contact = FirstContact(venv.num_envs)
         self.peak_um = np.zeros(venv.num_envs)
 
     def reset(self):
-        self.phase[:], self.pushed[:], self.peak_um[:] = 0, False, 0.0
+        self.contact.reset(slice(None))
+        self.peak_um[:] = 0.0
         return self.venv.reset()
 
     def step_wait(self):
         observations, rewards, dones, infos = self.venv.step_wait()
-        rewards = np.array(rewards, dtype=np.float64)
-        for i, info in enumerate(infos):
-            if self.phase[i] == 0 and info["foot_height_m"] < 0.0:
-                self.phase[i] = 1
-            if self.phase[i] == 1:
-                self.pushed[i] |= info["pad_force_n"] > 0.0
-                if self.pushed[i] and info["pad_force_n"] <= 0.0:
-                    self.phase[i] = 2
-                else:
-                    x_um = abs(info["x_m"]) * 1e6
-                    rewards[i] -= self.weight * max(0.0, x_um - self.peak_um[i])
-                    self.peak_um[i] = max(self.peak_um[i], x_um)
-            if dones[i]:
-                self.phase[i], self.pushed[i], self.peak_um[i] = 0, False, 0.0
-        return observations, rewards.astype(np.float32), dones, infos
-
-
-class PrivilegedObservation(VecEnvWrapper):
-    """Each rig's observation followed by its episode's ``privileged_features`` and :data:`LIVE`."""
-
-    def __init__(self, venv: BatchedVecEnv) -> None:
-        self.core = venv.env.core
-        extra = privileged_features(self.core.draw_episode(0, np.random.default_rng(0))).size + len(LIVE)
-        size = venv.observation_space.shape[0] + extra
-        super().__init__(venv, observation_space=gym.spaces.Box(-np.inf, np.inf, (size,), np.float32))
-        self.features: np.ndarray | None = None
-        self.live = np.zeros((venv.num_envs, len(LIVE)))
-
-    def _features(self, rigs) -> np.ndarray:
-        return np.array([privileged_features(self.core.episodes[i]) for i in rigs])
-
-    @staticmethod
-    def _join(observations, features, live) -> np.ndarray:
-        return np.concatenate([observations, features, live], axis=-1).astype(np.float32)
-
-    def reset(self):
-        observations = self.venv.reset()
-        self.features, self.live[:] = self._features(range(self.num_envs)), 0.0
-        return self._join(observations, self.features, self.live)
-
-    def step_wait(self):
-        observations, rewards, dones, infos = self.venv.step_wait()
-        self.live = np.array([[info[key] / scale for key, scale in LIVE.items()] for info in infos])
-        for i in np.flatnonzero(dones):
-            ended = infos[i]["terminal_observation"]
-            infos[i]["terminal_observation"] = self._join(ended, self.features[i], self.live[i])
-            self.features[i], self.live[i] = self._features([i])[0], 0.0  # the next episode's
-        return self._join(observations, self.features, self.live), rewards, dones, infos
+        reading = {key: np.array([info[key] for info in infos]) for key in ("foot_height_m", "pad_force_n", "x_m")}
+        touching = self.contact.update(reading["foot_height_m"], reading["pad_force_n"])
+        x_um = np.abs(reading["x_m"]) * 1e6
+        growth = np.where(touching, np.maximum(0.0, x_um - self.peak_um), 0.0)
+        self.peak_um = np.where(touching, np.maximum(self.peak_um, x_um), self.peak_um)
+        self.contact.reset(dones)
+        self.peak_um[dones] = 0.0
+        return (
+            observations,
+            (np.asarray(rewards, dtype=np.float64) - self.weight * growth).astype(np.float32),
+            dones,
+            infos,
+        )
 
 
 class AsymmetricSACPolicy(SACPolicy):
@@ -187,7 +153,7 @@ def build(env_kwargs: dict, stack: int, privileged: bool, peak_weight: float, se
     if peak_weight:
         venv = PeakReward(venv, peak_weight)
     if privileged:
-        venv = PrivilegedObservation(venv)
+        venv = ProbeObservation(venv, [], privileged=True, live=LIVE)
         policy = AsymmetricSACPolicy
         arguments["policy_kwargs"] = {**arguments.get("policy_kwargs", {}), "visible": visible}
     if stack > 1:
@@ -198,10 +164,8 @@ def build(env_kwargs: dict, stack: int, privileged: bool, peak_weight: float, se
 
 def probe_controller(model, normalized, stack: int, visible: int, env_kwargs: dict) -> ProbeController:
     """The trained model deployed as :func:`deployed_controller` deploys a policy, with the probe's
-    memory (its class swapped for :class:`ProbeController`, which only adds the two hooks)."""
-    controller = deployed_controller(ProbePolicy(model, normalized, stack, visible), env_kwargs)
-    controller.__class__ = ProbeController
-    return controller
+    memory (as a :class:`ProbeController`, which only adds the two hooks)."""
+    return deployed_controller(ProbePolicy(model, normalized, stack, visible), env_kwargs, ProbeController)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -181,12 +181,15 @@ def load_policy(folder: str | Path, control_period_s: float) -> PolicyController
     return deployed_controller(policy, env)
 
 
-def deployed_controller(policy: Any, env_kwargs: dict[str, Any]) -> PolicyController:
+def deployed_controller(
+    policy: Any, env_kwargs: dict[str, Any], controller: type[PolicyController] = PolicyController
+) -> PolicyController:
     """``policy``, trained in ``MicroGravityLanding-v1`` with ``env_kwargs``, as the controller it
-    is deployed as: a residual on its base controller, acting every decision period."""
+    is deployed as: a residual on its base controller, acting every decision period (a
+    ``controller``, :class:`PolicyController` or a subclass of it)."""
     residual = env_kwargs.get("action_mode", "speed") == "residual"
     period = float(env_kwargs.get("control_period_s", CONTROL_PERIOD_S))
-    return PolicyController(
+    return controller(
         policy,
         decision_period=int(env_kwargs.get("decision_period", 1)),
         base=make_controller(env_kwargs.get("base_controller", "pid"), period) if residual else None,
