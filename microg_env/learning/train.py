@@ -237,6 +237,7 @@ def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings
         raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({fault(error)})") from None
     settings = _check_args(folder / "args.yml", args)
     _check_state(folder / CHECKPOINTS, state)
+    _check_evaluations(folder / EVALUATIONS)
     params = hp.load(settings.algo, settings.env_id, folder / "config.yml")
     target = asked.timesteps if asked.timesteps is not None else settings.timesteps  # args.yml keeps the last
     if target is not None:
@@ -309,6 +310,31 @@ def _check_state(checkpoints: Path, state: object) -> None:
             raise ValueError(f"{where}: its {key} {str(checkpoints / name)!r} is missing or empty")
     normalization = state.get("vecnormalize")
     _check_checkpoint(where, checkpoints / state["model"], normalization and checkpoints / normalization)
+
+
+def _check_evaluations(path: Path) -> None:
+    """A run's ``evaluations.json`` (absent: none yet) is a list of rows each scored as this version
+    scores (:func:`~microg_env.analysis.summary.selection_cost`: |compensation error| [%] + the mean
+    x at the collision [um] / 10, both in the row): a run scored by the worst x at the collision
+    (before 0.12.0) would compare its old best with costs of another rule. Else a ValueError."""
+    where = f"--resume: {str(path)!r}"
+    try:
+        rows = _read_json(path, [])
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{where}: cannot read the run's evaluations ({fault(error)})") from None
+    if not (isinstance(rows, list) and all(isinstance(row, dict) for row in rows)):
+        raise ValueError(f"{where}: not a list of evaluations (JSON objects)")
+    for row in rows:
+        figures = [row.get(key) for key in ("cost", "compensation_error_pct", "collision_excursion_um")]
+        if not all(isinstance(value, int | float) and not isinstance(value, bool) for value in figures):
+            continue  # a failed evaluation (null figures) sets no best
+        cost, error, collision = figures
+        if not math.isclose(cost, error + collision / 10, rel_tol=1e-6, abs_tol=1e-12):
+            raise ValueError(
+                f"{where}: the evaluation at {shown(row.get('timesteps'))} steps costs {cost!r}, not "
+                f"|compensation error| + x at the collision / 10 um ({error + collision / 10:.6g}): "
+                "a run scored by the worst x at the collision (before 0.12.0) cannot be resumed; start a new run"
+            )
 
 
 def _check_checkpoint(where: str, model: Path, normalization: Path | None) -> None:

@@ -781,6 +781,15 @@ def _damage(key, damage):
 _empty_vecnormalize = _damage("vecnormalize", lambda data: b"")
 
 
+def _old_rule_evaluations(folder):
+    """A row scored by 0.11's rule: its cost with the worst x at the collision (2 um), its own
+    figures the mean's (1 um; 0.1007 by this rule); a resume used to take its cost as the best."""
+    path = folder / "evaluations.json"
+    rows = json.loads(path.read_text())
+    rows[0] |= {"cost": 0.2007, "compensation_error_pct": 0.0007, "collision_excursion_um": 1.0}
+    path.write_text(json.dumps(rows))
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [
@@ -795,6 +804,9 @@ _empty_vecnormalize = _damage("vecnormalize", lambda data: b"")
         (lambda folder: (folder / "args.yml").write_text(""), "not a mapping"),
         (lambda folder: (folder / "args.yml").write_text("algo: ppo\nwings: 2\n"), "unknown keys wings"),
         (lambda folder: (folder / "args.yml").write_text("algo: dqn\n"), "algo must be one of"),
+        (lambda folder: (folder / "evaluations.json").write_text("[{"), "cannot read the run's evaluations"),
+        (lambda folder: (folder / "evaluations.json").write_text("[1]"), "not a list of evaluations"),
+        (_old_rule_evaluations, r"costs 0\.2007.*before 0\.12\.0\) cannot be resumed"),
     ],
 )
 def test_a_broken_run_folder_is_named_and_left_as_it_was(ppo_run, tmp_path, change, message):
