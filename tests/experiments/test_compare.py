@@ -3,6 +3,7 @@
 import json
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +18,9 @@ from microg_env.learning.hyperparams import load as load_hyperparams
 
 #: The training seed of the shipped residual-sac-gated (docs/controllers.md: the best of five).
 GATED_SEED = 6
+#: The training seed of the shipped residual-sac-setpoint (docs/controllers.md: the best of five).
+SETPOINT_SEED = 5
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
@@ -242,6 +246,32 @@ def test_the_gated_policy_shipped_for_v5_records_its_training():
     assert "--eval-freq 20000 --eval-episodes 40 " in card["command"]
     for row in json.loads((folder / "evaluations.json").read_text(encoding="utf-8")):  # by the mean (0.12)
         assert row["cost"] == pytest.approx(row["compensation_error_pct"] + row["collision_excursion_um"] / 10)
+    assert totals["timesteps"] >= card["target_timesteps"] == 200_000
+    assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
+    assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
+    finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
+    assert "it beats the base controller alone (0.1332)" in finished
+
+
+def test_the_setpoint_gated_policy_records_its_training():
+    """residual-sac-setpoint: the best of five seeds of training/sac_gate_on_setpoint.yml (v5's SAC
+    recipe gated on the high-passed setpoint) by the selection cost on 200 validation episodes,
+    evaluated every 2e4 steps on 40 episodes, deployed with that gate; trained within 30 minutes."""
+    folder = shipped_policy_folder("residual-sac-setpoint")
+    card = policy_card(folder)
+    command = (
+        "microg train --algo sac --env MicroGravityLanding-Residual-v5 -conf training/sac_gate_on_setpoint.yml "
+        f"--seed {SETPOINT_SEED} --timesteps 200000 --eval-freq 20000 --eval-episodes 40 "
+    )
+    assert card["command"].startswith(command)
+    assert card["env_id"] == "MicroGravityLanding-Residual-v5"
+    path = REPO / "training" / "sac_gate_on_setpoint.yml"
+    recipe = load_hyperparams("sac", "MicroGravityLanding-Residual-v5", path).as_config()
+    assert card["hyperparams"] == json.loads(json.dumps(recipe))
+    controller = load_policy(folder, 1e-3)
+    assert (controller.residual_gate_m, controller.residual_gate_on) == (0.0, "setpoint")
+    assert controller.policy.squash  # SAC's tanh
+    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
     assert totals["timesteps"] >= card["target_timesteps"] == 200_000
     assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
     assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
