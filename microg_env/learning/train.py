@@ -322,8 +322,8 @@ def _check_evaluations(path: Path) -> None:
         rows = _read_json(path, [])
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise ValueError(f"{where}: cannot read the run's evaluations ({fault(error)})") from None
-    if not (isinstance(rows, list) and all(isinstance(row, dict) for row in rows)):
-        raise ValueError(f"{where}: not a list of evaluations (JSON objects)")
+    if not (isinstance(rows, list) and all(isinstance(row, dict) and "cost" in row for row in rows)):
+        raise ValueError(f"{where}: not a list of evaluations (JSON objects, each with a cost)")
     for row in rows:
         figures = [row.get(key) for key in ("cost", "compensation_error_pct", "collision_excursion_um")]
         if not all(isinstance(value, int | float) and not isinstance(value, bool) for value in figures):

@@ -13,7 +13,8 @@ MuJoCo promises the batch bit-identical to a loop of ``mj_step``; the batch is p
 its sensors and accelerations are those of the last substep, as ``MjData``'s are.
 
 A forked child inherits every batch of its parent but none of their threads, and freeing such a
-batch waits on those threads for ever: a child keeps its inherited batches until it exits.
+batch waits on those threads (it hung, or aborted): a child keeps its inherited batches until it
+exits, and must not step one (make a new environment in the child).
 """
 
 from __future__ import annotations

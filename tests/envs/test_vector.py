@@ -111,9 +111,11 @@ def test_a_forked_child_that_drops_an_inherited_batch_exits():
     vector.step(np.zeros((4, 1), np.float32))
     child = os.fork()
     if child == 0:  # pragma: no cover (the child's coverage is not collected)
-        del vector
-        gc.collect()
-        os._exit(0)
+        try:
+            del vector
+            gc.collect()
+        finally:
+            os._exit(0)
     deadline = time.monotonic() + 60
     while (ended := os.waitpid(child, os.WNOHANG))[0] == 0 and time.monotonic() < deadline:
         time.sleep(0.05)

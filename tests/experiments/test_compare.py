@@ -271,6 +271,8 @@ def test_the_setpoint_gated_policy_records_its_training():
     controller = load_policy(folder, 1e-3)
     assert (controller.residual_gate_m, controller.residual_gate_on) == (0.0, "setpoint")
     assert controller.policy.squash  # SAC's tanh
+    for row in json.loads((folder / "evaluations.json").read_text(encoding="utf-8")):  # by the mean (0.12)
+        assert row["cost"] == pytest.approx(row["compensation_error_pct"] + row["collision_excursion_um"] / 10)
     totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
     assert totals["timesteps"] >= card["target_timesteps"] == 200_000
     assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine

@@ -806,6 +806,7 @@ def _old_rule_evaluations(folder):
         (lambda folder: (folder / "args.yml").write_text("algo: dqn\n"), "algo must be one of"),
         (lambda folder: (folder / "evaluations.json").write_text("[{"), "cannot read the run's evaluations"),
         (lambda folder: (folder / "evaluations.json").write_text("[1]"), "not a list of evaluations"),
+        (lambda folder: (folder / "evaluations.json").write_text('[{"best": true}]'), "each with a cost"),
         (_old_rule_evaluations, r"costs 0\.2007.*before 0\.12\.0\) cannot be resumed"),
     ],
 )

@@ -22,5 +22,6 @@ def test_the_reward_threshold_is_the_zero_residuals_measured_return(env_id):
         _, reward, terminated, truncated, _ = vector.step(np.zeros((n, 1), dtype=np.float32))
         returns += np.where(running, reward, 0.0)
         running &= ~(terminated | truncated)
+    vector.close()
     threshold = gym.spec(env_id).reward_threshold
     assert threshold <= returns.mean() < threshold + 1, returns.mean()
