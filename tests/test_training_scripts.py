@@ -207,11 +207,17 @@ def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(mo
 
 
 def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):
-    """The v4 policy (its hidden entries a JSON list) is v4's; on v3 it is refused before any row runs."""
+    """The v4 policy (its hidden entries a JSON list) is v4's, the setpoint-gated one v6's; on v3 the
+    v4 policy is refused before any row runs."""
     monkeypatch.syspath_prepend(str(TRAINING))
     returns_table = importlib.import_module("returns_table")
-    assert tuple(f"MicroGravityLanding-Residual-v{v}" for v in (5, 4, 3, 2, 1)) == returns_table.ENV_IDS  # newest first
+    assert (
+        tuple(f"MicroGravityLanding-Residual-v{v}" for v in (6, 5, 4, 3, 2, 1)) == returns_table.ENV_IDS
+    )  # newest first
     returns_table.policy_actor("MicroGravityLanding-Residual-v4", "residual-sac-adaptive")
+    returns_table.policy_actor(
+        "MicroGravityLanding-Residual-v6", "residual-sac-setpoint"
+    )  # trained on v5 with v6's gate
     with pytest.raises(SystemExit) as exit_:
         returns_table.main(["--env", "MicroGravityLanding-Residual-v3", "--policies", "residual-sac-adaptive"])
     assert exit_.value.code == 2
@@ -334,6 +340,20 @@ def test_a_probe_recipe_is_the_packaged_gated_recipe_with_one_change(recipe, key
     assert probe["env_kwargs"].pop(key) == value
     assert key not in packaged["env_kwargs"]
     assert probe == packaged
+
+
+def test_the_setpoint_probe_on_v5_is_v6s_packaged_task_and_recipe():
+    """The shipped `residual-sac-setpoint` was trained on v5 by training/sac_gate_on_setpoint.yml:
+    the same environment and recipe as sac.yml's v6 entry, so the id's command trains it."""
+    import gymnasium as gym
+
+    from microg_env.learning import hyperparams
+
+    probe = hyperparams.load("sac", "MicroGravityLanding-Residual-v5", TRAINING / "sac_gate_on_setpoint.yml")
+    packaged = hyperparams.load("sac", "MicroGravityLanding-Residual-v6")
+    assert probe.env_kwargs == packaged.env_kwargs == gym.spec("MicroGravityLanding-Residual-v6").kwargs
+    assert packaged.env_kwargs["residual_gate_on"] == "setpoint"
+    assert probe.as_config() == packaged.as_config()
 
 
 def test_reward_by_phase_splits_the_gated_policys_return_where_its_gate_opens(monkeypatch, capsys):

@@ -61,6 +61,7 @@ ENV_IDS = (
     "MicroGravityLanding-Residual-v3",
     "MicroGravityLanding-Residual-v4",
     "MicroGravityLanding-Residual-v5",
+    "MicroGravityLanding-Residual-v6",
 )
 #: Folders and files of a run.
 CHECKPOINTS, LATEST, POLICY, EVALUATIONS, LOG = "checkpoints", "latest.json", "policy", "evaluations.json", "train.log"

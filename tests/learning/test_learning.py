@@ -852,11 +852,15 @@ RESIDUAL_IDS = {
         "hidden_observations": ("support_position", "lander_accel", "pad_force"),
     },
 }
-NEWEST_RESIDUAL_ID = "MicroGravityLanding-Residual-v5"  # every packaged file has an entry for it
-#: Each version's reward_threshold: its zero residual's mean return (its base controller's).
-THRESHOLDS = dict.fromkeys(RESIDUAL_IDS, microg_env.REWARD_THRESHOLD) | {
-    NEWEST_RESIDUAL_ID: microg_env.GATED_REWARD_THRESHOLD
+RESIDUAL_IDS["MicroGravityLanding-Residual-v6"] = RESIDUAL_IDS["MicroGravityLanding-Residual-v5"] | {
+    "residual_gate_on": "setpoint"
 }
+#: The versions on `adaptive-dither`, gated to the contact: every packaged file has an entry for each.
+GATED_IDS = ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v6")
+#: Each version's reward_threshold: its zero residual's mean return (its base controller's).
+THRESHOLDS = dict.fromkeys(RESIDUAL_IDS, microg_env.REWARD_THRESHOLD) | dict.fromkeys(
+    GATED_IDS, microg_env.GATED_REWARD_THRESHOLD
+)
 
 
 @pytest.mark.parametrize("env_id", RESIDUAL_IDS)
@@ -878,7 +882,7 @@ def test_the_residual_task_is_registered_with_its_defaults_and_passes_check_env(
     assert spec.reward_threshold == THRESHOLDS[env_id] > 0
     check_env(gym.make(env_id).unwrapped, skip_render_check=True)
     # a run's settings are the id's defaults updated by the file's entry: the card says the whole task
-    for algo in ("ppo", "sac", "tqc") if env_id == NEWEST_RESIDUAL_ID else ("ppo",):
+    for algo in ("ppo", "sac", "tqc") if env_id in GATED_IDS else ("ppo",):
         assert hp.load(algo, env_id).env_kwargs == spec.kwargs, algo
 
 
