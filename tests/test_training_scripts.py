@@ -139,7 +139,9 @@ def test_sac_probes_refuse_what_they_cannot_run(monkeypatch, capsys):
 @pytest.mark.slow
 def test_privileged_observation_follows_the_episode(recipe_probe):
     """The critic's features are those of the episode an observation belongs to: an ended
-    episode's terminal observation carries its own, the next episode's first observation the new one's."""
+    episode's terminal observation carries its own, the next episode's first observation the new
+    one's. The live entries, after them, are the last step's readings over their scales: the
+    ending step's in a terminal observation, zeros in an episode's first."""
     import numpy as np
 
     from microg_env.interface import OBSERVATION_INDEX
@@ -148,24 +150,33 @@ def test_privileged_observation_follows_the_episode(recipe_probe):
 
     params = hyperparams.load("ppo", recipe_probe.ENV_ID)
     height = OBSERVATION_INDEX["height"]
-    env = recipe_probe.ProbeObservation(BatchedVecEnv.make(2, **params.env_kwargs), [height], True)
+    live = {"x_m": 1e-6, "foot_height_m": 0.01}
+    env = recipe_probe.ProbeObservation(BatchedVecEnv.make(2, **params.env_kwargs), [height], True, live)
     env.seed(7)
     obs = env.reset()
-    size = obs.shape[1] - recipe_probe.privileged_features(env.venv.env.core.episodes[0]).size
-    before = obs[:, size:].copy()
+    end = obs.shape[1] - len(live)  # the privileged features end here
+    size = end - recipe_probe.privileged_features(env.venv.env.core.episodes[0]).size
+    before = obs[:, size:end].copy()
     assert (obs[:, height] == 0.0).all()
+    assert (obs[:, end:] == 0.0).all()
     assert not np.allclose(before[0], before[1])  # two rigs, two drawn plants
     for _ in range(2000):
         obs, _, dones, infos = env.step(np.zeros((2, 1), dtype=np.float32))
+        readings = np.array([[info[key] / scale for key, scale in live.items()] for info in infos], np.float32)
         if dones.any():
             break
+        np.testing.assert_array_equal(obs[:, end:], readings)
     i = int(np.flatnonzero(dones)[0])
-    assert np.array_equal(infos[i]["terminal_observation"][size:], before[i])
-    assert infos[i]["terminal_observation"][height] == 0.0  # blind, before the reset and after it
+    assert (readings[i] != 0.0).all()  # readings a zero (an episode's first) cannot pass for
+    terminal = infos[i]["terminal_observation"]
+    assert np.array_equal(terminal[size:end], before[i])
+    np.testing.assert_array_equal(terminal[end:], readings[i])
+    assert terminal[height] == 0.0  # blind, before the reset and after it
     assert (obs[:, height] == 0.0).all()
-    assert not np.allclose(obs[i, size:], before[i])
+    assert (obs[i, end:] == 0.0).all()  # the next episode's first observation
+    assert not np.allclose(obs[i, size:end], before[i])
     current = recipe_probe.privileged_features(env.venv.env.core.episodes[i]).astype(np.float32)
-    assert np.array_equal(obs[i, size:], current)
+    assert np.array_equal(obs[i, size:end], current)
     env.close()
 
 
@@ -450,9 +461,10 @@ def test_a_sac_probe_is_deployed_as_it_was_trained(monkeypatch, stack, privilege
 
 
 def test_the_peak_reward_charges_the_first_contacts_peak_as_reward_by_phase_reads_it(monkeypatch):
-    """Over an episode, sac_probes' PeakReward takes ``weight`` per micrometre of the first contact's
-    peak |x| from the return: the peak ``reward_by_phase.phase_returns`` reads on the single env of
-    the same seed (the vector env's rig i is it, bit for bit)."""
+    """Over each episode, sac_probes' PeakReward takes ``weight`` per micrometre of that episode's
+    first-contact peak |x| from the return: the peak ``reward_by_phase.phase_returns`` reads on the
+    single env of the same seed (the vector env's rig i is it, bit for bit), for each rig's second
+    episode too (the peak and the contact start again where a rig's episode ends)."""
     import gymnasium as gym
     import numpy as np
 
@@ -465,13 +477,15 @@ def test_the_peak_reward_charges_the_first_contacts_peak_as_reward_by_phase_read
     venv = probes.PeakReward(BatchedVecEnv.make(2, **kwargs), weight=20.0)
     venv.seed(1000)
     venv.reset()
-    returns, running = np.zeros(2), np.ones(2, dtype=bool)
-    while running.any():
+    returns, episode = np.zeros((2, 2)), np.zeros(2, dtype=np.int64)  # each rig's first two episodes
+    while (episode < 2).any():
         _, rewards, dones, _ = venv.step(np.zeros((2, 1), dtype=np.float32))
-        returns += np.where(running, rewards, 0.0)
-        running &= ~dones
+        for rig in np.flatnonzero(episode < 2):
+            returns[rig, episode[rig]] += rewards[rig]
+        episode += dones
     env = gym.make(probes.ENV_ID)
     for rig in range(2):
-        plain, peak_m, _ = phases.phase_returns(env, phases.zero_residual, 1000 + rig)
-        assert peak_m > 2e-7  # a contact whose peak the charge can be told from
-        assert returns[rig] == pytest.approx(plain.sum() - 20.0 * peak_m * 1e6, abs=1e-3)
+        for number, seed in enumerate((1000 + rig, None)):  # None: the single env's next episode
+            plain, peak_m, _ = phases.phase_returns(env, phases.zero_residual, seed)
+            assert peak_m > 2e-7  # a contact whose peak the charge can be told from
+            assert returns[rig, number] == pytest.approx(plain.sum() - 20.0 * peak_m * 1e6, abs=1e-3)

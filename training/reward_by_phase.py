@@ -61,10 +61,10 @@ class FirstContact:
         self.phase[rigs], self.pushed[rigs] = 0, False
 
 
-def phase_returns(env: gym.Env, act, seed: int) -> tuple[np.ndarray, float, float]:
-    """The return of each phase (:data:`PHASES`) of one episode, its first contact's peak |x|, m,
-    and the action at the first decision the environment's gate passes (NaN without a gate, or if
-    it never opens)."""
+def phase_returns(env: gym.Env, act, seed: int | None) -> tuple[np.ndarray, float, float]:
+    """The return of each phase (:data:`PHASES`) of one episode (reset with ``seed``; None: the
+    env's next), its first contact's peak |x|, m, and the action at the first decision the
+    environment's gate passes (NaN without a gate, or if it never opens)."""
     obs, _ = env.reset(seed=seed)
     returns, contact, peak, done = np.zeros(len(PHASES)), FirstContact(1), 0.0, False
     opening, gate_m = math.nan, env.unwrapped.residual_gate_m
