@@ -130,7 +130,8 @@ def render_markdown(c: Comparison) -> str:
             lines.append(f"| {controller} | " + " | ".join(cells) + " |")
     lines += [
         "",
-        f"Figures: `x_landing.png` (x around the first touchdown, first seed), `metrics.png` (each metric's "
+        f"Figures: `x_landing.png` (the peak |x| in each {PEAK_WINDOW_S * 1e3:g} ms around the first touchdown, "
+        "first seed), `metrics.png` (each metric's "
         f"ratio to `{plot_reference(c)}`'s on the same episodes, with its 95 % interval; a ratio beyond "
         f"{OFF_SCALE:g} is an arrow with its value, an interval running past the panel ends in one). Every case's "
         "values: `comparison.json`.",
@@ -139,9 +140,13 @@ def render_markdown(c: Comparison) -> str:
     return "\n".join(lines)
 
 
-#: x_landing.png's vertical axis is linear within this many µm of 0 and logarithmic beyond.
-X_LINEAR_UM = 0.1
-X_TICKS_UM = (-10.0, -1.0, -0.1, 0.0, 0.1, 1.0, 10.0)
+#: x_landing.png draws each controller's peak |x| in windows of this length, s: the excursions the
+#: metrics read, not the oscillation between them, which drawn as x turns ten controllers into one
+#: band.
+PEAK_WINDOW_S = 0.05
+#: x_landing.png's vertical axis, µm, in decades: the PID's 10 µm and the learned 0.1 µm in one panel.
+PEAK_LIMITS_UM = (0.01, 30.0)
+PEAK_TICKS_UM = (0.01, 0.1, 1.0, 10.0)
 #: What x_landing.png's title says of the plants, by ``Comparison.randomize``.
 PLANT_TITLES = {
     False: "",
@@ -151,9 +156,22 @@ PLANT_TITLES = {
 }
 
 
+def windowed_peak(t: np.ndarray, x: np.ndarray, window_s: float = PEAK_WINDOW_S) -> tuple[np.ndarray, np.ndarray]:
+    """The edges of consecutive ``window_s`` windows over :data:`X_WINDOW_S` and the peak |x| in
+    each (NaN where no sample falls)."""
+    start, end = X_WINDOW_S
+    count = round((end - start) / window_s)
+    edges = start + window_s * np.arange(count + 1)
+    inside = (t >= start) & (t < edges[-1])
+    peaks = np.full(count, -np.inf)
+    np.maximum.at(peaks, np.searchsorted(edges, t[inside], side="right") - 1, np.abs(x[inside]))
+    peaks[np.isinf(peaks)] = np.nan
+    return edges, peaks
+
+
 def render_figures(c: Comparison) -> dict[str, object]:
-    """``x_landing.png``: x from 1 s before to 3 s after the touchdown, one panel per scenario;
-    ``metrics.png``: :func:`paired_figure`."""
+    """``x_landing.png``: each controller's peak |x| in each :data:`PEAK_WINDOW_S` from 1 s before
+    to 3 s after the touchdown, one panel per scenario; ``metrics.png``: :func:`paired_figure`."""
     figure_type = figure_class()
     n = len(c.scenarios)
     landing = figure_type(figsize=(9, 2.4 * n), layout="constrained")
@@ -162,13 +180,13 @@ def render_figures(c: Comparison) -> dict[str, object]:
         for i, controller in enumerate(c.controllers):
             for result in c.runs(controller, scenario):
                 if result.x_window is not None:
-                    t, x = result.x_window
-                    ax.plot(t, x * 1e6, lw=0.8, color=f"C{i}", label=controller)
+                    edges, peaks = windowed_peak(*result.x_window)
+                    ax.stairs(peaks * 1e6, edges, lw=1.2, color=f"C{i % 10}", label=controller)
         ax.axvline(0.0, color="k", lw=0.5)
-        # the PID's 10 um and the sub-um controllers in one panel: linear near 0, decades beyond
-        ax.set_yscale("symlog", linthresh=X_LINEAR_UM, linscale=0.7)
-        ax.set_yticks(X_TICKS_UM, [f"{tick:g}" for tick in X_TICKS_UM])
-        ax.set_ylabel(f"x [µm], linear within ±{X_LINEAR_UM:g}")
+        ax.set_yscale("log")
+        ax.set_ylim(*PEAK_LIMITS_UM)
+        ax.set_yticks(PEAK_TICKS_UM, [f"{tick:g}" for tick in PEAK_TICKS_UM])
+        ax.set_ylabel(f"peak |x| per {PEAK_WINDOW_S * 1e3:g} ms [µm]")
         ax.set_title(scenario, fontsize=9)
         ax.grid(alpha=0.3)
     if axes[0].get_legend_handles_labels()[0]:  # no touchdown, no line

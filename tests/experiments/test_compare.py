@@ -312,19 +312,41 @@ def test_cli_compare_runs_held_out_schedules_on_wider_plants(capsys):
 
 
 def test_the_figures_label_micrometres_and_say_which_plants(randomized):
-    """x_landing.png: µm on a scale that is linear near 0 and in decades beyond (the PID's 10 µm and
-    the sub-µm controllers in one panel), titled by what was drawn; metrics.png: µm in its titles."""
-    from microg_env.experiments.comparison_report import PLANT_TITLES, render_figures
+    """x_landing.png: each controller's peak |x| per 50 ms in µm, in decades (the PID's 10 µm and the
+    sub-µm controllers in one panel), titled by what was drawn; metrics.png: µm in its titles."""
+    from microg_env.experiments.comparison_report import PLANT_TITLES, render_figures, windowed_peak
 
     figures = render_figures(randomized)
     axes = figures["x_landing.png"].axes
-    assert axes[0].get_ylabel() == "x [µm], linear within ±0.1"
-    assert axes[0].get_yscale() == "symlog"
+    assert axes[0].get_ylabel() == "peak |x| per 50 ms [µm]"
+    assert axes[0].get_yscale() == "log"
+    drawn = axes[0].patches[0].get_data()  # the first controller's first seed, as stairs
+    edges, peaks = windowed_peak(*randomized.runs("pid", next(iter(randomized.scenarios)))[0].x_window)
+    np.testing.assert_array_equal(drawn.edges, edges)
+    np.testing.assert_allclose(drawn.values, peaks * 1e6)
     assert figures["x_landing.png"].get_suptitle() == f"x during the landing, seed {TEST_SEED}{PLANT_TITLES[True]}"
     assert sorted(t.get_text() for t in axes[0].get_legend().get_texts()) == ["feedforward", "pid"]
     titles = [ax.get_title() for ax in figures["metrics.png"].axes]
     assert "x at the collision [µm]" in titles
     assert "x in free fall [µm]" in titles
+
+
+def test_the_landing_figure_draws_the_peak_of_each_window():
+    """windowed_peak on a hand-made trace: 50 ms windows over -1 to 3 s, the peak |x| of the
+    samples in each, the window's start included and its end not, NaN where none falls."""
+    from microg_env.experiments.comparison_report import windowed_peak
+
+    t = np.array([-1.0, -0.99, -0.951, -0.95, 0.0, 0.049, 2.999, 3.0])
+    x = np.array([1.0, -3.0, 2.0, -0.5, 4.0, -5.0, 6.0, 100.0])
+    edges, peaks = windowed_peak(t, x)
+    assert edges.size == 81
+    assert edges[[0, 20, -1]] == pytest.approx([-1.0, 0.0, 3.0])
+    assert peaks[0] == 3.0  # -1 to -0.95: 1, -3 and 2
+    assert peaks[1] == 0.5  # -0.95 opens the second window
+    assert peaks[20] == 5.0
+    assert peaks[-1] == 6.0  # t = 3 s lies past the last window
+    assert np.isnan(peaks[2:20]).all()
+    assert np.isnan(peaks[21:-1]).all()
 
 
 def test_the_comparison_carries_the_papers_instant_of_collision_change(randomized):
