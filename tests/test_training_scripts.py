@@ -338,16 +338,19 @@ def test_gain_by_base_error_bins_paired_episodes_by_the_references_own_value(mon
 
 
 @pytest.mark.parametrize(
-    ("recipe", "key", "value"),
-    [("sac_on_both_rigs.yml", "sensor_set", "mixed"), ("sac_gate_on_setpoint.yml", "residual_gate_on", "setpoint")],
+    ("recipe", "packaged_id", "key", "value"),
+    [
+        ("sac_on_both_rigs.yml", "MicroGravityLanding-Residual-v5", "sensor_set", "mixed"),
+        ("sac_gate_on_setpoint.yml", "MicroGravityLanding-Residual-v5", "residual_gate_on", "setpoint"),
+        ("sac_setpoint_on_both_rigs.yml", "MicroGravityLanding-Residual-v6", "sensor_set", "mixed"),
+    ],
 )
-def test_a_probe_recipe_is_the_packaged_gated_recipe_with_one_change(recipe, key, value):
-    """Each probe recipe differs from the packaged v5 SAC recipe in its one env keyword only."""
+def test_a_probe_recipe_is_the_packaged_gated_recipe_with_one_change(recipe, packaged_id, key, value):
+    """Each probe recipe (on v5) differs from a packaged gated SAC recipe in its one env keyword only."""
     from microg_env.learning import hyperparams
 
-    env_id = "MicroGravityLanding-Residual-v5"
-    probe = hyperparams.load("sac", env_id, TRAINING / recipe).as_config()
-    packaged = hyperparams.load("sac", env_id).as_config()
+    probe = hyperparams.load("sac", "MicroGravityLanding-Residual-v5", TRAINING / recipe).as_config()
+    packaged = hyperparams.load("sac", packaged_id).as_config()
     assert probe["env_kwargs"].pop(key) == value
     assert key not in packaged["env_kwargs"]
     assert probe == packaged
