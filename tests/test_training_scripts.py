@@ -218,17 +218,17 @@ def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(mo
 
 
 def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):
-    """The v4 policy (its hidden entries a JSON list) is v4's, the setpoint-gated one v6's; on v3 the
-    v4 policy is refused before any row runs."""
+    """The v4 policy (its hidden entries a JSON list) is v4's; the setpoint-gated one (trained on v5
+    with v6's gate) is v6's, and v5's gated one is not; on v3 the v4 policy is refused before any
+    row runs."""
     monkeypatch.syspath_prepend(str(TRAINING))
     returns_table = importlib.import_module("returns_table")
-    assert (
-        tuple(f"MicroGravityLanding-Residual-v{v}" for v in (6, 5, 4, 3, 2, 1)) == returns_table.ENV_IDS
-    )  # newest first
+    newest_first = tuple(f"MicroGravityLanding-Residual-v{v}" for v in (6, 5, 4, 3, 2, 1))
+    assert newest_first == returns_table.ENV_IDS
     returns_table.policy_actor("MicroGravityLanding-Residual-v4", "residual-sac-adaptive")
-    returns_table.policy_actor(
-        "MicroGravityLanding-Residual-v6", "residual-sac-setpoint"
-    )  # trained on v5 with v6's gate
+    returns_table.policy_actor("MicroGravityLanding-Residual-v6", "residual-sac-setpoint")
+    with pytest.raises(ValueError, match="trained with residual_gate_on 'action'"):
+        returns_table.policy_actor("MicroGravityLanding-Residual-v6", "residual-sac-gated")
     with pytest.raises(SystemExit) as exit_:
         returns_table.main(["--env", "MicroGravityLanding-Residual-v3", "--policies", "residual-sac-adaptive"])
     assert exit_.value.code == 2

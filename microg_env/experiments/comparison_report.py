@@ -145,8 +145,8 @@ def render_markdown(c: Comparison) -> str:
 #: band.
 PEAK_WINDOW_S = 0.05
 #: x_landing.png's vertical axis, µm, in decades: the PID's 10 µm and the learned 0.1 µm in one panel.
-PEAK_LIMITS_UM = (0.01, 30.0)
-PEAK_TICKS_UM = (0.01, 0.1, 1.0, 10.0)
+PEAK_LIMITS_UM = (0.001, 30.0)
+PEAK_TICKS_UM = (0.001, 0.01, 0.1, 1.0, 10.0)
 #: What x_landing.png's title says of the plants, by ``Comparison.randomize``.
 PLANT_TITLES = {
     False: "",
@@ -156,16 +156,21 @@ PLANT_TITLES = {
 }
 
 
-def windowed_peak(t: np.ndarray, x: np.ndarray, window_s: float = PEAK_WINDOW_S) -> tuple[np.ndarray, np.ndarray]:
-    """The edges of consecutive ``window_s`` windows over :data:`X_WINDOW_S` and the peak |x| in
-    each (NaN where no sample falls)."""
+def windowed_peak(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The edges of consecutive :data:`PEAK_WINDOW_S` windows over :data:`X_WINDOW_S` and the peak
+    |x| in each (NaN where no sample falls); a window holds its start, not its end, and the last
+    one both."""
     start, end = X_WINDOW_S
-    count = round((end - start) / window_s)
-    edges = start + window_s * np.arange(count + 1)
-    inside = (t >= start) & (t < edges[-1])
+    count = round((end - start) / PEAK_WINDOW_S)
+    edges = np.linspace(start, end, count + 1)
+    # each sample's window, its position rounded to 1e-9 windows so that a sample on an edge is not
+    # put in the window before by the float error of t - start
+    index = np.floor(np.round((t - start) / PEAK_WINDOW_S, 9)).astype(np.int64)
+    index[t == end] = count - 1
+    inside = (index >= 0) & (index < count)
     peaks = np.full(count, -np.inf)
-    np.maximum.at(peaks, np.searchsorted(edges, t[inside], side="right") - 1, np.abs(x[inside]))
-    peaks[np.isinf(peaks)] = np.nan
+    np.maximum.at(peaks, index[inside], np.abs(x[inside]))
+    peaks[peaks == -np.inf] = np.nan
     return edges, peaks
 
 
@@ -181,7 +186,7 @@ def render_figures(c: Comparison) -> dict[str, object]:
             for result in c.runs(controller, scenario):
                 if result.x_window is not None:
                     edges, peaks = windowed_peak(*result.x_window)
-                    ax.stairs(peaks * 1e6, edges, lw=1.2, color=f"C{i % 10}", label=controller)
+                    ax.stairs(peaks * 1e6, edges, baseline=None, lw=1.2, color=f"C{i}", label=controller)
         ax.axvline(0.0, color="k", lw=0.5)
         ax.set_yscale("log")
         ax.set_ylim(*PEAK_LIMITS_UM)

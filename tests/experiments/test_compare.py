@@ -324,6 +324,8 @@ def test_the_figures_label_micrometres_and_say_which_plants(randomized):
     edges, peaks = windowed_peak(*randomized.runs("pid", next(iter(randomized.scenarios)))[0].x_window)
     np.testing.assert_array_equal(drawn.edges, edges)
     np.testing.assert_allclose(drawn.values, peaks * 1e6)
+    assert np.isfinite(peaks[:40]).all()  # every window from 1 s before the touchdown to 1 s after has samples
+    assert drawn.baseline is None  # no drop to the axis's bottom at each end
     assert figures["x_landing.png"].get_suptitle() == f"x during the landing, seed {TEST_SEED}{PLANT_TITLES[True]}"
     assert sorted(t.get_text() for t in axes[0].get_legend().get_texts()) == ["feedforward", "pid"]
     titles = [ax.get_title() for ax in figures["metrics.png"].axes]
@@ -333,20 +335,23 @@ def test_the_figures_label_micrometres_and_say_which_plants(randomized):
 
 def test_the_landing_figure_draws_the_peak_of_each_window():
     """windowed_peak on a hand-made trace: 50 ms windows over -1 to 3 s, the peak |x| of the
-    samples in each, the window's start included and its end not, NaN where none falls."""
+    samples in each, a window's start included and its end not (the last window's end too), on
+    edges whose float sum lands a hair off (0.05, 0.1, 0.45), NaN where none falls."""
     from microg_env.experiments.comparison_report import windowed_peak
 
-    t = np.array([-1.0, -0.99, -0.951, -0.95, 0.0, 0.049, 2.999, 3.0])
-    x = np.array([1.0, -3.0, 2.0, -0.5, 4.0, -5.0, 6.0, 100.0])
+    t = np.array([-1.01, -1.0, -0.99, -0.951, -0.95, 0.0, 0.049, 0.05, 0.1, 0.45, 2.999, 3.0, 3.01])
+    x = np.array([50.0, 1.0, -3.0, 2.0, -0.5, 4.0, -5.0, 7.0, -8.0, 9.0, 6.0, -10.0, 50.0])
     edges, peaks = windowed_peak(t, x)
     assert edges.size == 81
-    assert edges[[0, 20, -1]] == pytest.approx([-1.0, 0.0, 3.0])
-    assert peaks[0] == 3.0  # -1 to -0.95: 1, -3 and 2
+    assert edges[[0, 20, 21, -1]] == pytest.approx([-1.0, 0.0, 0.05, 3.0])
+    assert peaks[0] == 3.0  # -1 to -0.95: 1, -3 and 2 (not -1.01's 50)
     assert peaks[1] == 0.5  # -0.95 opens the second window
     assert peaks[20] == 5.0
-    assert peaks[-1] == 6.0  # t = 3 s lies past the last window
-    assert np.isnan(peaks[2:20]).all()
-    assert np.isnan(peaks[21:-1]).all()
+    assert (peaks[21], peaks[22], peaks[29]) == (7.0, 8.0, 9.0)
+    assert peaks[-1] == 10.0  # 2.999 and 3.0 (not 3.01's 50)
+    assert np.isnan(np.delete(peaks, [0, 1, 20, 21, 22, 29, 79])).all()
+    _, inf = windowed_peak(np.array([0.0]), np.array([np.inf]))
+    assert inf[20] == np.inf  # a blow-up stays one
 
 
 def test_the_comparison_carries_the_papers_instant_of_collision_change(randomized):

@@ -889,7 +889,7 @@ def test_the_residual_task_is_registered_with_its_defaults_and_passes_check_env(
 def test_a_zero_action_is_the_base_controller_on_every_version_of_the_residual_task():
     """The high-pass and the gate pass a zero residual as zero and the base controller reads every
     sensor whatever the agent is shown, so every version's zero action is v1's on the same base
-    controller, bit for bit (v4's and v5's agents see 0 in their hidden entries), and versions on
+    controller, bit for bit (v4's, v5's and v6's agents see 0 in their hidden entries), and versions on
     the same base share the zero residual's return as their reward_threshold."""
     import gymnasium as gym
 
