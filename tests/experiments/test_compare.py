@@ -198,6 +198,23 @@ def test_the_policy_shipped_for_the_registered_task_records_its_training():
     assert "the base controller alone (0.2007)" in finished  # the line to beat, in the log
 
 
+def _check_training_record(folder, card: dict, timesteps: int, base_cost: str) -> None:
+    """A shipped run's record: trained to its target within 30 minutes on the 2-core machine, the
+    shipped model the run's best, and its log saying it beats its base controller alone."""
+    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
+    assert totals["timesteps"] >= card["target_timesteps"] == timesteps
+    assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
+    assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
+    finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
+    assert f"it beats the base controller alone ({base_cost})" in finished
+
+
+def _check_costs_by_the_mean(folder) -> None:
+    """Every evaluation scored by 0.12's rule: mean |compensation error| + mean x at the collision / 10 um."""
+    for row in json.loads((folder / "evaluations.json").read_text(encoding="utf-8")):
+        assert row["cost"] == pytest.approx(row["compensation_error_pct"] + row["collision_excursion_um"] / 10)
+
+
 def test_the_sac_policy_shipped_for_v4_records_its_training():
     """residual-sac-adaptive: the best of five seeds of sac.yml's recipe on
     MicroGravityLanding-Residual-v4 by the control cost on 40 validation episodes
@@ -213,12 +230,7 @@ def test_the_sac_policy_shipped_for_v4_records_its_training():
     controller = load_policy(folder, 1e-3)
     assert controller._hidden == [OBSERVATION_INDEX["support_position"], OBSERVATION_INDEX["height"]]
     assert controller.policy.squash  # SAC's tanh
-    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
-    assert totals["timesteps"] >= card["target_timesteps"] == 300_000
-    assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
-    assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
-    finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
-    assert "it beats the base controller alone (0.2007)" in finished
+    _check_training_record(folder, card, 300_000, "0.2007")
 
 
 def test_the_gated_policy_shipped_for_v5_records_its_training():
@@ -242,15 +254,9 @@ def test_the_gated_policy_shipped_for_v5_records_its_training():
     assert controller.policy.squash  # SAC's tanh
     hidden = (*SENSOR_SETS["paper"], "support_position")
     assert sorted(controller._hidden) == sorted(OBSERVATION_INDEX[name] for name in hidden)
-    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
     assert "--eval-freq 20000 --eval-episodes 40 " in card["command"]
-    for row in json.loads((folder / "evaluations.json").read_text(encoding="utf-8")):  # by the mean (0.12)
-        assert row["cost"] == pytest.approx(row["compensation_error_pct"] + row["collision_excursion_um"] / 10)
-    assert totals["timesteps"] >= card["target_timesteps"] == 200_000
-    assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
-    assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
-    finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
-    assert "it beats the base controller alone (0.1332)" in finished
+    _check_costs_by_the_mean(folder)
+    _check_training_record(folder, card, 200_000, "0.1332")
 
 
 def test_the_setpoint_gated_policy_records_its_training():
@@ -271,14 +277,8 @@ def test_the_setpoint_gated_policy_records_its_training():
     controller = load_policy(folder, 1e-3)
     assert (controller.residual_gate_m, controller.residual_gate_on) == (0.0, "setpoint")
     assert controller.policy.squash  # SAC's tanh
-    for row in json.loads((folder / "evaluations.json").read_text(encoding="utf-8")):  # by the mean (0.12)
-        assert row["cost"] == pytest.approx(row["compensation_error_pct"] + row["collision_excursion_um"] / 10)
-    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
-    assert totals["timesteps"] >= card["target_timesteps"] == 200_000
-    assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
-    assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
-    finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
-    assert "it beats the base controller alone (0.1332)" in finished
+    _check_costs_by_the_mean(folder)
+    _check_training_record(folder, card, 200_000, "0.1332")
 
 
 @pytest.mark.slow
