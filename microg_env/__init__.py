@@ -142,7 +142,7 @@ _register(
     },
     GATED_REWARD_THRESHOLD,
 )
-# v5's task with the gate on the high-passed setpoint (interface.gated_actions): the action goes
+# v5's task with the gate on the high-passed setpoint (interface.gated_setpoint): the action goes
 # through the high-pass throughout and the gate passes the filtered setpoint, so an action the agent
 # holds before the contact has decayed when the gate opens instead of entering the contact as a
 # step (0.89 a x 3 um for an action a through v5's gate). Trained so (the recipe of
