@@ -19,6 +19,8 @@ from pathlib import Path
 
 import pytest
 
+from microg_env.learning.hyperparams import ALGORITHMS
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -47,7 +49,7 @@ def shipped_folders() -> list[str]:
 
 def test_wheel_contains_the_hyperparameters_and_the_shipped_policy(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
-    for name in ("ppo.yml", "sac.yml", "tqc.yml"):
+    for name in (f"{algo}.yml" for algo in ALGORITHMS):
         assert f"microg_env/hyperparams/{name}" in names
     assert shipped_folders(), "no policy is shipped"
     # What a shipped policy runs and says of itself; its stable-baselines3 files (only to fine-tune) stay out.

@@ -21,7 +21,7 @@ from microg_env.cli.common import (
 from microg_env.controllers.registry import CONTROLLER_NAMES
 from microg_env.experiments.comparison import MAX_SEEDS, MAX_WORKERS, TEST_SEED
 from microg_env.imperfections import PRESETS
-from microg_env.learning.hyperparams import ALGORITHMS, MAX_ENVS
+from microg_env.learning.hyperparams import ALGORITHMS, CONTRIB_ALGORITHMS, MAX_ENVS
 from microg_env.learning.train import MAX_EVAL_EPISODES, TrainSettings
 
 #: ``microg train``'s options that set a run (``args.yml``), by the TrainSettings field they fill.
@@ -43,7 +43,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         import stable_baselines3  # noqa: F401
         import torch  # noqa: F401
 
-        if args.algo == "tqc":
+        if args.algo in CONTRIB_ALGORITHMS:
             import sb3_contrib  # noqa: F401
         from microg_env.learning.train import TrainingInterrupted, resolve, resumed_run, train
     except ImportError:
@@ -158,7 +158,7 @@ def add_commands(commands) -> None:
     train = commands.add_parser(
         "train",
         help="train a learned controller with stable-baselines3 (rl-baselines3-zoo layout)",
-        description="Train PPO, SAC or TQC on MicroGravityLanding-v1 with the hyperparameters of "
+        description="Train PPO, SAC, TQC or CrossQ on MicroGravityLanding-v1 with the hyperparameters of "
         "microg_env/hyperparams/<algo>.yml (packaged), into logs/<algo>/<env>_<n>/: config, best model, "
         "normalisation, checkpoints, TensorBoard events, monitor files, evaluations by the project's metrics "
         "and the exported policy.",
@@ -167,7 +167,7 @@ def add_commands(commands) -> None:
     train.add_argument(
         "--algo",
         choices=ALGORITHMS,
-        help=f"algorithm: stable-baselines3's PPO or SAC, sb3-contrib's TQC (default {defaults.algo})",
+        help=f"algorithm: stable-baselines3's PPO or SAC, sb3-contrib's TQC or CrossQ (default {defaults.algo})",
     )
     train.add_argument("--env", dest="env_id", metavar="ENV", help=f"environment id (default {defaults.env_id})")
     train.add_argument(

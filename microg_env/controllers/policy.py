@@ -7,7 +7,7 @@ controller runs in the speed-action environment of every other controller, on th
 it rebuilds the observation the policy was trained on (its own previous action and the base
 controller's last command in entries 8 and 9) and composes the policy with its base.
 
-:class:`MLPPolicy` is a trained stable-baselines3 or sb3-contrib actor (PPO, SAC, TQC) exported to
+:class:`MLPPolicy` is a trained stable-baselines3 or sb3-contrib actor (PPO, SAC, TQC, CrossQ) exported to
 NumPy with its observation normalisation (``VecNormalize``), so a shipped policy runs without torch. A policy folder
 holds the exported network (``policy.npz``) and the command, seed, budget and results of its
 training (``policy.json``); a training run's folder also the stable-baselines3 model and

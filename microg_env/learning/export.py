@@ -18,39 +18,76 @@ MODEL_FILE, NORMALIZATION_FILE = "model.zip", "vecnormalize.pkl"
 
 
 def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], str, bool]:
-    """The deterministic actor of a PPO, SAC or TQC ``model``: its layers' weights and biases
-    (float64, the first on the whole observation the model was trained on), the activation between
-    them and whether its output is squashed (SAC; TQC's actor is built as SAC's) rather than
-    clipped (PPO)."""
-    import torch.nn as nn
+    """The deterministic actor of a PPO, SAC, TQC or CrossQ ``model``: its layers' weights and
+    biases (float64, the first on the whole observation the model was trained on), the activation
+    between them and whether its output is squashed (SAC; TQC's and CrossQ's actors are built as
+    SAC's) rather than clipped (PPO). CrossQ's batch renormalisation layers are folded into the
+    layers they feed (:func:`fold_batch_renorm`)."""
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.torch_layers import FlattenExtractor
 
-    tqc = getattr(sys.modules.get("sb3_contrib"), "TQC", None)  # imported wherever a TQC model is
+    contrib = sys.modules.get("sb3_contrib")  # imported wherever a TQC or CrossQ model is
+    squashed = (SAC, *(getattr(contrib, name) for name in ("TQC", "CrossQ") if hasattr(contrib, name)))
 
     if isinstance(model, PPO):
         policy = model.policy
         extractor, hidden = policy.pi_features_extractor, policy.mlp_extractor.policy_net
         head, squash = policy.action_net, False
-    elif isinstance(model, SAC) or (tqc is not None and isinstance(model, tqc)):
+    elif isinstance(model, squashed):
         actor = model.actor
         extractor, hidden, head, squash = actor.features_extractor, actor.latent_pi, actor.mu, True
     else:
-        raise ValueError(f"can export PPO, SAC and TQC policies, got {type(model).__name__}")
+        raise ValueError(f"can export PPO, SAC, TQC and CrossQ policies, got {type(model).__name__}")
     if not isinstance(extractor, FlattenExtractor):
         raise ValueError(f"can export MLP policies only, got a {type(extractor).__name__}")
-    linear = [m for m in hidden if isinstance(m, nn.Linear)] + [head]
-    kinds = {type(m).__name__ for m in hidden if not isinstance(m, nn.Linear)}
-    activation = {frozenset({"Tanh"}): "tanh", frozenset({"ReLU"}): "relu"}.get(frozenset(kinds))
+    layers, activations = fold_batch_renorm([*hidden, head])
+    activation = {frozenset({"Tanh"}): "tanh", frozenset({"ReLU"}): "relu"}.get(frozenset(activations))
     if activation is None:
-        raise ValueError(f"can export tanh or ReLU networks, got {sorted(kinds)}")
-    weights = tuple(m.weight.detach().cpu().numpy().astype(np.float64) for m in linear)
-    biases = tuple(m.bias.detach().cpu().numpy().astype(np.float64) for m in linear)
+        raise ValueError(f"can export tanh or ReLU networks, got {sorted(activations)}")
+    weights, biases = zip(*layers, strict=True)
     return weights, biases, activation, squash
 
 
+def fold_batch_renorm(modules: list[Any]) -> tuple[list[tuple[np.ndarray, np.ndarray]], set[str]]:
+    """The linear layers of ``modules`` (weight, bias in float64) and the names of the other
+    modules' types, with each batch renormalisation layer (sb3-contrib's ``BatchRenorm1d``, CrossQ's)
+    folded into the linear layer it feeds. A deployed CrossQ actor runs in evaluation mode, where
+    such a layer is the affine map y = s (x - m) / sqrt(v + eps) + b by its running mean m and
+    variance v: y = a x + c, and W y + d = (W diag(a)) x + (W c + d)."""
+    import torch.nn as nn
+
+    layers, others = [], set()
+    scale = shift = None  # the affine map waiting for the next linear layer
+    for module in modules:
+        if isinstance(module, nn.Linear):
+            weight = _array(module.weight)
+            bias = _array(module.bias)
+            if scale is not None:
+                weight, bias = weight * scale[None, :], weight @ shift + bias
+                scale = shift = None
+            layers.append((weight, bias))
+        elif hasattr(module, "ra_mean") and hasattr(module, "ra_var"):  # BatchRenorm
+            std = np.sqrt(_array(module.ra_var) + module.eps)
+            a, c = 1.0 / std, -_array(module.ra_mean) / std
+            if module.affine:
+                gain = _array(module.scale)
+                a, c = gain * a, gain * c + _array(module.bias)
+            scale, shift = (a, c) if scale is None else (a * scale, a * shift + c)
+        elif scale is not None:
+            raise ValueError(f"a batch normalisation feeds a {type(module).__name__}, not a linear layer")
+        else:
+            others.add(type(module).__name__)
+    if scale is not None:
+        raise ValueError("the network ends with a batch normalisation, which has no linear layer to fold into")
+    return layers, others
+
+
+def _array(tensor: Any) -> np.ndarray:
+    return tensor.detach().cpu().numpy().astype(np.float64)
+
+
 def export_policy(model: Any, vecnormalize: Any | None) -> MLPPolicy:
-    """The deterministic actor of a PPO, SAC or TQC ``model`` (:func:`actor_layers`) and the observation
+    """The deterministic actor of a PPO, SAC, TQC or CrossQ ``model`` (:func:`actor_layers`) and the observation
     statistics of ``vecnormalize`` (None: no normalisation) as an :class:`MLPPolicy`."""
     weights, biases, activation, squash = actor_layers(model)
     size = model.observation_space.shape[0]

@@ -24,8 +24,10 @@ from microg_env import validate
 from microg_env.files import read_yaml
 from microg_env.validate import shown
 
-#: Algorithms ``microg train`` runs (stable-baselines3's PPO and SAC, sb3-contrib's TQC).
-ALGORITHMS = ("ppo", "sac", "tqc")
+#: Algorithms ``microg train`` runs (stable-baselines3's PPO and SAC, sb3-contrib's TQC and CrossQ).
+ALGORITHMS = ("ppo", "sac", "tqc", "crossq")
+#: The sb3-contrib algorithms among them, by their class names there.
+CONTRIB_ALGORITHMS = {"tqc": "TQC", "crossq": "CrossQ"}
 #: Algorithm arguments microg train sets itself (from its options), refused in a file.
 SET_BY_TRAIN = ("device", "seed", "verbose", "tensorboard_log", "env", "policy")
 #: Algorithm arguments that count something, each a positive integer.

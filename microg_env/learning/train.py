@@ -103,11 +103,12 @@ class TrainSettings:
 
 def algorithm(name: str):
     """The algorithm class of ``name`` (one of :data:`~microg_env.learning.hyperparams.ALGORITHMS`);
-    TQC is sb3-contrib's (truncated quantile critics, an actor built as SAC's), imported only for it."""
-    if name == "tqc":
-        from sb3_contrib import TQC
+    TQC (truncated quantile critics, an actor built as SAC's) and CrossQ (SAC with batch
+    renormalisation and no target networks) are sb3-contrib's, imported only for them."""
+    if name in hp.CONTRIB_ALGORITHMS:
+        import sb3_contrib
 
-        return TQC
+        return getattr(sb3_contrib, hp.CONTRIB_ALGORITHMS[name])
     from stable_baselines3 import PPO, SAC
 
     return {"ppo": PPO, "sac": SAC}[name]
@@ -650,7 +651,7 @@ def _callback(run: _Run):
 
 def planned_steps(params: hp.Hyperparams, start: int) -> int | None:
     """The step count stable-baselines3's ``learn`` stops at from ``start``: the first at or past the
-    target that ends a whole rollout, n_envs x n_steps (PPO) or n_envs x train_freq steps (SAC, TQC);
+    target that ends a whole rollout, n_envs x n_steps (PPO) or n_envs x train_freq steps (SAC, TQC, CrossQ);
     None where rollouts are counted in episodes (``train_freq: [n, episode]``), whose length varies."""
     left = params.n_timesteps - start
     if left <= 0:

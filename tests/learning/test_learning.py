@@ -36,14 +36,15 @@ RESIDUAL = {"action_mode": "residual", "base_controller": "feedforward", "decisi
 # -- hyperparameter files ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac", "tqc"])
+@pytest.mark.parametrize("algo", hp.ALGORITHMS)
 def test_the_packaged_files_are_the_repositorys_and_parse(algo):
     params = hp.load(algo, ENV_ID)
     assert Path(params.source).read_bytes() == (REPO / "microg_env" / "hyperparams" / f"{algo}.yml").read_bytes()
     assert params.env_kwargs["action_mode"] == "residual"
     assert params.normalize is not None
     assert params.normalize["gamma"] == params.algo_kwargs["gamma"]
-    assert params.algo_kwargs["policy_kwargs"]["net_arch"] == [64, 64]
+    arch = params.algo_kwargs["policy_kwargs"]["net_arch"]
+    assert (arch["pi"] if algo == "crossq" else arch) == [64, 64]  # the actor: CrossQ's critics are its own
     assert "n_envs" not in params.algo_kwargs
     assert "env_kwargs" not in params.algo_kwargs
 
@@ -126,24 +127,59 @@ def _vec_env(**kwargs):
     return venv
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac", "tqc"])
+@pytest.mark.parametrize("algo", hp.ALGORITHMS)
 @pytest.mark.slow
 def test_the_numpy_export_acts_as_stable_baselines3_does(algo):
-    from sb3_contrib import TQC
-    from stable_baselines3 import PPO, SAC
+    import torch
+
+    from microg_env.learning.train import algorithm
 
     venv = _vec_env()
-    cls = {"ppo": PPO, "sac": SAC, "tqc": TQC}[algo]
-    model = cls("MlpPolicy", venv, seed=1, device="cpu", policy_kwargs={"net_arch": [16, 16]})
+    model = algorithm(algo)("MlpPolicy", venv, seed=1, device="cpu", policy_kwargs={"net_arch": [16, 16]})
     head = model.policy.action_net if algo == "ppo" else model.actor.mu
-    with __import__("torch").no_grad():  # a head far from zero, so clipping and squashing show
+    with torch.no_grad():  # a head far from zero, so clipping and squashing show
         head.weight.mul_(300.0 if algo == "ppo" else 10.0)
+    renorms = [layer for layer in getattr(model, "actor", model.policy).modules() if hasattr(layer, "ra_var")]
+    assert len(renorms) == (3 if algo == "crossq" else 0)  # CrossQ's before each linear layer, folded in
+    rng = np.random.default_rng(3)
+    with torch.no_grad():  # running statistics and gains other than the identity, so the folding shows
+        for layer in renorms:
+            size = layer.num_features
+            layer.ra_mean.copy_(torch.as_tensor(rng.normal(0.0, 1.0, size)))
+            layer.ra_var.copy_(torch.as_tensor(rng.uniform(0.2, 3.0, size)))
+            layer.scale.copy_(torch.as_tensor(rng.uniform(0.5, 2.0, size)))
+            layer.bias.copy_(torch.as_tensor(rng.normal(0.0, 0.5, size)))
     exported = export_policy(model, venv)
     observations = np.random.default_rng(2).normal(0.0, 3.0, (200, 10)).astype(np.float32)
     ours = np.array([exported.predict(o)[0] for o in observations])
     theirs = np.array([model.predict(venv.normalize_obs(o), deterministic=True)[0] for o in observations])
-    np.testing.assert_allclose(ours, theirs, atol=2e-6)
+    np.testing.assert_allclose(ours, theirs, atol=2e-6 if not renorms else 1e-5)  # torch's float32
     assert np.abs(ours).max() > 0.5  # the comparison reaches the limits, not only the linear middle
+    if renorms:  # the folding exact: the actor in float64, in evaluation mode as deployed
+        actor = model.actor.double().eval()
+        with torch.no_grad():
+            exact = actor(torch.as_tensor(venv.normalize_obs(observations), dtype=torch.float64), deterministic=True)
+        assert np.all(np.abs(exact.numpy()) <= 1.0)  # the action space is [-1, 1]: predict's action as it is
+        np.testing.assert_allclose(ours, exact.numpy().astype(np.float32), rtol=0.0, atol=1e-7)  # ours is float32
+
+
+@pytest.mark.parametrize(
+    ("layers", "message"),
+    [
+        (lambda nn, renorm: [nn.Linear(3, 4), renorm(4), nn.ReLU(), nn.Linear(4, 1)], "feeds a ReLU"),
+        (lambda nn, renorm: [nn.Linear(3, 4), nn.ReLU(), nn.Linear(4, 2), renorm(2)], "ends with a batch"),
+    ],
+)
+def test_a_batch_renormalisation_that_feeds_no_linear_layer_is_refused(layers, message):
+    """Only a renormalisation feeding a linear layer folds into it (an activation between them does not
+    commute with the affine map); sb3-contrib's CrossQ actor has only those."""
+    import torch.nn as nn
+    from sb3_contrib.common.torch_layers import BatchRenorm1d
+
+    from microg_env.learning.export import fold_batch_renorm
+
+    with pytest.raises(ValueError, match=message):
+        fold_batch_renorm(layers(nn, BatchRenorm1d))
 
 
 def _random_policy(seed: int) -> MLPPolicy:
@@ -264,6 +300,8 @@ def _tiny_hyperparams(tmp_path: Path, algo: str) -> Path:
     entry |= {"learning_starts": 50, "buffer_size": 5000, "batch_size": 32} if algo != "ppo" else {}
     if algo == "tqc":  # not the defaults (25, 2), so a test sees the file's values reach the critic
         entry |= {"policy_kwargs": "dict(net_arch=[16, 16], n_quantiles=7)", "top_quantiles_to_drop_per_net": 1}
+    if algo == "crossq":  # not the file's 3 or sb3-contrib's default, so a test sees the file's value reach it
+        entry |= {"policy_delay": 2}
     path = tmp_path / f"{algo}.yml"
     path.write_text(yaml.safe_dump({ENV_ID: entry}))
     return path
@@ -391,7 +429,28 @@ def test_tqc_trains_and_ships_a_policy_the_controllers_run(tmp_path):
     np.testing.assert_allclose([exported.predict(o)[0] for o in observations], theirs, atol=2e-6)
 
 
-@pytest.mark.parametrize("algo", ["sac", "tqc"])
+@pytest.mark.slow
+def test_crossq_trains_and_ships_a_policy_the_controllers_run(tmp_path):
+    """sb3-contrib's CrossQ through microg train: the exported policy, its batch renormalisation
+    folded in at the running statistics training left, acts as the model does, and its card names
+    the algorithm."""
+    from sb3_contrib import CrossQ
+
+    folder = train(_settings(tmp_path, "crossq", 128))
+    card = json.loads((folder / "policy" / "policy.json").read_text())
+    assert card["algo"] == "crossq"
+    model = CrossQ.load(folder / "policy" / "model.zip", device="cpu")
+    assert model.policy_delay == 2  # the file's
+    renorm = model.actor.latent_pi[0]
+    assert renorm.steps > 0  # trained: running statistics other than the initial identity
+    assert not np.allclose(renorm.ra_var.numpy(), 1.0)
+    exported = make_controller(str(folder / "policy"), 1e-3).policy
+    observations = np.random.default_rng(0).normal(0.0, 1.0, (50, 10)).astype(np.float32)
+    theirs = model.predict(exported.normalize(observations), deterministic=True)[0]
+    np.testing.assert_allclose([exported.predict(o)[0] for o in observations], theirs, atol=2e-6)
+
+
+@pytest.mark.parametrize("algo", ["sac", "tqc", "crossq"])
 @pytest.mark.slow
 def test_an_off_policy_run_resumes_with_its_replay_buffer(tmp_path, algo):
     from microg_env.learning.train import algorithm
@@ -857,6 +916,12 @@ RESIDUAL_IDS["MicroGravityLanding-Residual-v6"] = RESIDUAL_IDS["MicroGravityLand
 }
 #: The versions on `adaptive-dither`, gated to the contact: every packaged file has an entry for each.
 GATED_IDS = ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v6")
+#: The packaged files (by algorithm) with an entry for a residual version: ppo.yml alone unless listed;
+#: crossq.yml has the working id's (v6) only.
+PACKAGED_ENTRIES = {
+    "MicroGravityLanding-Residual-v5": ("ppo", "sac", "tqc"),
+    "MicroGravityLanding-Residual-v6": hp.ALGORITHMS,
+}
 #: Each version's reward_threshold: its zero residual's mean return (its base controller's).
 THRESHOLDS = dict.fromkeys(RESIDUAL_IDS, microg_env.REWARD_THRESHOLD) | dict.fromkeys(
     GATED_IDS, microg_env.GATED_REWARD_THRESHOLD
@@ -882,7 +947,7 @@ def test_the_residual_task_is_registered_with_its_defaults_and_passes_check_env(
     assert spec.reward_threshold == THRESHOLDS[env_id] > 0
     check_env(gym.make(env_id).unwrapped, skip_render_check=True)
     # a run's settings are the id's defaults updated by the file's entry: the card says the whole task
-    for algo in ("ppo", "sac", "tqc") if env_id in GATED_IDS else ("ppo",):
+    for algo in PACKAGED_ENTRIES.get(env_id, ("ppo",)):
         assert hp.load(algo, env_id).env_kwargs == spec.kwargs, algo
 
 
