@@ -357,8 +357,9 @@ def test_a_probe_recipe_is_the_packaged_gated_recipe_with_one_change(recipe, pac
 
 
 def test_the_setpoint_probe_on_v5_is_v6s_packaged_task_and_recipe():
-    """The shipped `residual-sac-setpoint` was trained on v5 by training/sac_gate_on_setpoint.yml:
-    the same environment and recipe as sac.yml's v6 entry, so the id's command trains it."""
+    """The five seeds `residual-sac-setpoint` was chosen from were trained on v5 by
+    training/sac_gate_on_setpoint.yml: the same environment and recipe as sac.yml's v6 entry, whose
+    command trains the shipped seed (its card's)."""
     import gymnasium as gym
 
     from microg_env.learning import hyperparams
