@@ -38,16 +38,22 @@ _RUN_FIELDS = {
 }
 
 
-def _cmd_train(args: argparse.Namespace) -> int:
+def _check_train_extra(algo: str | None) -> None:
+    """What training ``algo`` imports (sb3-contrib for its algorithms), or a ValueError naming the extra."""
     try:
         import stable_baselines3  # noqa: F401
         import torch  # noqa: F401
 
-        if args.algo in CONTRIB_ALGORITHMS:
+        if algo in CONTRIB_ALGORITHMS:
             import sb3_contrib  # noqa: F401
-        from microg_env.learning.train import TrainingInterrupted, resolve, resumed_run, train
     except ImportError:
         raise ValueError("microg train needs the train extra: pip install 'microg-env[train]'") from None
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    _check_train_extra(args.algo)
+    from microg_env.learning.train import TrainingInterrupted, resolve, resumed_run, train
+
     given = {field: getattr(args, field) for field in _RUN_FIELDS.values() if getattr(args, field) is not None}
     command = " ".join(["microg", *map(shlex.quote, args.argv)])
     settings = TrainSettings(**given, timesteps=args.timesteps, command=command)
@@ -58,6 +64,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             raise ValueError(f"--resume {args.resume!r}: no such run folder")
         _, run, _, _ = resumed_run(resume, settings)  # a run that cannot go on is named before anything is written
         algo = run.algo
+        _check_train_extra(algo)  # a run resumed without --algo
         changed = [
             option for option, field in _RUN_FIELDS.items() if field in given and given[field] != getattr(run, field)
         ]

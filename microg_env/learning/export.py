@@ -12,6 +12,7 @@ import numpy as np
 
 from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy
 from microg_env.files import replace_folder
+from microg_env.learning.hyperparams import CONTRIB_ALGORITHMS
 
 #: stable-baselines3's files in a policy folder, for fine-tuning and the zoo's ``enjoy``.
 MODEL_FILE, NORMALIZATION_FILE = "model.zip", "vecnormalize.pkl"
@@ -27,7 +28,7 @@ def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, 
     from stable_baselines3.common.torch_layers import FlattenExtractor
 
     contrib = sys.modules.get("sb3_contrib")  # imported wherever a TQC or CrossQ model is
-    squashed = (SAC, *(getattr(contrib, name) for name in ("TQC", "CrossQ") if hasattr(contrib, name)))
+    squashed = (SAC, *(getattr(contrib, name) for name in CONTRIB_ALGORITHMS.values() if hasattr(contrib, name)))
 
     if isinstance(model, PPO):
         policy = model.policy
@@ -74,11 +75,11 @@ def fold_batch_renorm(modules: list[Any]) -> tuple[list[tuple[np.ndarray, np.nda
                 a, c = gain * a, gain * c + _array(module.bias)
             scale, shift = (a, c) if scale is None else (a * scale, a * shift + c)
         elif scale is not None:
-            raise ValueError(f"a batch normalisation feeds a {type(module).__name__}, not a linear layer")
+            raise ValueError(f"a batch renormalisation feeds a {type(module).__name__}, not a linear layer")
         else:
             others.add(type(module).__name__)
     if scale is not None:
-        raise ValueError("the network ends with a batch normalisation, which has no linear layer to fold into")
+        raise ValueError("the network ends with a batch renormalisation, which has no linear layer to fold into")
     return layers, others
 
 

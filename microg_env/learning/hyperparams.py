@@ -31,7 +31,7 @@ CONTRIB_ALGORITHMS = {"tqc": "TQC", "crossq": "CrossQ"}
 #: Algorithm arguments microg train sets itself (from its options), refused in a file.
 SET_BY_TRAIN = ("device", "seed", "verbose", "tensorboard_log", "env", "policy")
 #: Algorithm arguments that count something, each a positive integer.
-COUNT_KEYS = ("n_steps", "batch_size", "n_epochs", "buffer_size")
+COUNT_KEYS = ("n_steps", "batch_size", "n_epochs", "buffer_size", "policy_delay")
 #: TQC's quantiles per critic network unless policy_kwargs give n_quantiles (sb3-contrib's default).
 TQC_QUANTILES = 25
 #: Most environments a run steps (the CLI's --n-envs cap: rigs of one batch).

@@ -603,6 +603,11 @@ class _Run:
 
         from microg_env.version import __version__
 
+        versions = {"microg_env": __version__, "stable_baselines3": stable_baselines3.__version__}
+        if self.params.algo in hp.CONTRIB_ALGORITHMS:
+            import sb3_contrib
+
+            versions["sb3_contrib"] = sb3_contrib.__version__
         return {
             "env_id": self.params.env_id,
             "env_kwargs": self.params.env_kwargs,
@@ -616,12 +621,7 @@ class _Run:
             "machine": f"{platform.machine()}, {os.cpu_count()} cores, torch {torch.get_num_threads()} thread(s)",
             "hyperparams": self.params.as_config(),
             "validation": row | {"seeds": [VALIDATION_SEED, VALIDATION_SEED + self.settings.eval_episodes - 1]},
-            "versions": {
-                "microg_env": __version__,
-                "stable_baselines3": stable_baselines3.__version__,
-                "torch": torch.__version__,
-                "numpy": np.__version__,
-            },
+            "versions": versions | {"torch": torch.__version__, "numpy": np.__version__},
         }
 
 

@@ -718,6 +718,25 @@ def run_folder(tmp_path_factory):
     return next((tmp_path / "logs" / "ppo").iterdir())
 
 
+@pytest.mark.slow
+def test_train_without_sb3_contrib_names_the_extra_for_its_algorithms_resumed_runs_too(tmp_path, monkeypatch, capsys):
+    """A CrossQ run resumed without --algo on a machine without sb3-contrib was a raw ImportError."""
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "crossq.yml").read_text())["MicroGravityLanding-v1"]
+    entry |= {"learning_starts": 32, "buffer_size": 1000, "batch_size": 16, "policy_kwargs": "dict(net_arch=[8])"}
+    (tmp_path / "crossq.yml").write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
+    args = ["train", "--algo", "crossq", "-conf", str(tmp_path / "crossq.yml"), "--timesteps", "64"]
+    args += ["--eval-freq", "64", "--eval-episodes", "1", "--checkpoint-freq", "64", "--log-folder", str(tmp_path)]
+    assert main([*args, "--quiet"]) == 0
+    run = next((tmp_path / "crossq").iterdir())
+    monkeypatch.setitem(sys.modules, "sb3_contrib", None)  # import sb3_contrib raises ImportError
+    for command in (args, ["train", "--resume", str(run), "--timesteps", "128"]):
+        capsys.readouterr()
+        assert main([*command, "--quiet"]) == 2, command
+        err = capsys.readouterr().err.strip()
+        assert err.endswith("microg train needs the train extra: pip install 'microg-env[train]'"), err
+    assert json.loads((run / "checkpoints" / "latest.json").read_text())["timesteps"] == 64  # nothing touched
+
+
 def _resume_cases():
     for key in ("algo", "env_id", "seed", "timesteps", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq"):
         for value in BAD_VALUES:

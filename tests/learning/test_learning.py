@@ -163,11 +163,50 @@ def test_the_numpy_export_acts_as_stable_baselines3_does(algo):
         np.testing.assert_allclose(ours, exact.numpy().astype(np.float32), rtol=0.0, atol=1e-7)  # ours is float32
 
 
+def test_batch_renormalisations_fold_into_the_linear_layer_they_feed_as_torch_computes_them():
+    """Two in a row (composed), one without its affine gain and bias, and one before the head: the
+    folded layers compute what the modules do in evaluation mode, in float64, to rounding."""
+    import torch
+    import torch.nn as nn
+    from sb3_contrib.common.torch_layers import BatchRenorm1d
+
+    from microg_env.learning.export import fold_batch_renorm
+
+    torch.manual_seed(0)
+    modules = [
+        BatchRenorm1d(3),
+        BatchRenorm1d(3, affine=False),
+        nn.Linear(3, 5),
+        nn.ReLU(),
+        BatchRenorm1d(5),
+        nn.Linear(5, 2),
+    ]
+    rng = np.random.default_rng(4)
+    with torch.no_grad():  # statistics and gains far from the identity
+        for layer in (m for m in modules if isinstance(m, BatchRenorm1d)):
+            layer.ra_mean.copy_(torch.as_tensor(rng.normal(0.0, 2.0, layer.num_features)))
+            layer.ra_var.copy_(torch.as_tensor(rng.uniform(0.1, 4.0, layer.num_features)))
+            layer.scale.copy_(torch.as_tensor(rng.uniform(0.3, 3.0, layer.num_features)))
+            layer.bias.copy_(torch.as_tensor(rng.normal(0.0, 1.0, layer.num_features)))
+    network = nn.Sequential(*modules).double().eval()
+    x = rng.normal(0.0, 3.0, (50, 3))
+    with torch.no_grad():
+        expected = network(torch.as_tensor(x)).numpy()
+    layers, others = fold_batch_renorm(modules)
+    assert others == {"ReLU"}
+    assert [w.shape for w, _ in layers] == [(5, 3), (2, 5)]
+    (w1, b1), (w2, b2) = layers
+    np.testing.assert_allclose(np.maximum(x @ w1.T + b1, 0.0) @ w2.T + b2, expected, rtol=1e-12, atol=1e-12)
+
+
 @pytest.mark.parametrize(
     ("layers", "message"),
     [
         (lambda nn, renorm: [nn.Linear(3, 4), renorm(4), nn.ReLU(), nn.Linear(4, 1)], "feeds a ReLU"),
-        (lambda nn, renorm: [nn.Linear(3, 4), nn.ReLU(), nn.Linear(4, 2), renorm(2)], "ends with a batch"),
+        (
+            lambda nn, renorm: [nn.Linear(3, 4), nn.ReLU(), nn.Linear(4, 2), renorm(2)],
+            "ends with a batch renormalisation",
+        ),
     ],
 )
 def test_a_batch_renormalisation_that_feeds_no_linear_layer_is_refused(layers, message):
@@ -434,6 +473,7 @@ def test_crossq_trains_and_ships_a_policy_the_controllers_run(tmp_path):
     """sb3-contrib's CrossQ through microg train: the exported policy, its batch renormalisation
     folded in at the running statistics training left, acts as the model does, and its card names
     the algorithm."""
+    import sb3_contrib
     from sb3_contrib import CrossQ
 
     folder = train(_settings(tmp_path, "crossq", 128))
@@ -447,7 +487,8 @@ def test_crossq_trains_and_ships_a_policy_the_controllers_run(tmp_path):
     exported = make_controller(str(folder / "policy"), 1e-3).policy
     observations = np.random.default_rng(0).normal(0.0, 1.0, (50, 10)).astype(np.float32)
     theirs = model.predict(exported.normalize(observations), deterministic=True)[0]
-    np.testing.assert_allclose([exported.predict(o)[0] for o in observations], theirs, atol=2e-6)
+    np.testing.assert_allclose([exported.predict(o)[0] for o in observations], theirs, atol=1e-5)  # torch's float32
+    assert card["versions"]["sb3_contrib"] == sb3_contrib.__version__  # what the folded layers' meaning depends on
 
 
 @pytest.mark.parametrize("algo", ["sac", "tqc", "crossq"])
@@ -544,6 +585,16 @@ def test_entries_the_environment_or_the_algorithm_refuse_are_named_before_a_run_
     path.write_text(f"{ENV_ID}:\n  n_envs: 1\n{entry}")
     with pytest.raises(ValueError, match=message):
         resolve(TrainSettings(hyperparams=str(path)))
+    assert not (tmp_path / "logs").exists()
+
+
+def test_a_crossq_entry_that_would_never_update_its_actor_is_refused_before_a_run(tmp_path):
+    """CrossQ does not check policy_delay itself: 0 failed at the first update (a division by zero),
+    with the run folder already written."""
+    path = tmp_path / "crossq.yml"
+    path.write_text(f"{ENV_ID}:\n  n_timesteps: 1000\n  policy_delay: 0\n")
+    with pytest.raises(ValueError, match="policy_delay must be a positive integer"):
+        resolve(TrainSettings(algo="crossq", hyperparams=str(path)))
     assert not (tmp_path / "logs").exists()
 
 
@@ -914,10 +965,10 @@ RESIDUAL_IDS = {
 RESIDUAL_IDS["MicroGravityLanding-Residual-v6"] = RESIDUAL_IDS["MicroGravityLanding-Residual-v5"] | {
     "residual_gate_on": "setpoint"
 }
-#: The versions on `adaptive-dither`, gated to the contact: every packaged file has an entry for each.
+#: The versions on `adaptive-dither`, gated to the contact.
 GATED_IDS = ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v6")
-#: The packaged files (by algorithm) with an entry for a residual version: ppo.yml alone unless listed;
-#: crossq.yml has the working id's (v6) only.
+#: The packaged files (by algorithm) whose entry for a residual version is checked against the id:
+#: ppo.yml's unless listed; every file has one for the working id (v6), all but crossq.yml for v5.
 PACKAGED_ENTRIES = {
     "MicroGravityLanding-Residual-v5": ("ppo", "sac", "tqc"),
     "MicroGravityLanding-Residual-v6": hp.ALGORITHMS,
@@ -1062,6 +1113,11 @@ def test_planned_steps_agrees_with_stable_baselines3_itself(algo, kwargs):
     assert planned_steps(params, 0) == model.num_timesteps > 100
 
 
+def _standard_error(differences: np.ndarray) -> float:
+    """The standard error of the mean of paired differences."""
+    return float(differences.std(ddof=1) / math.sqrt(differences.size))
+
+
 @pytest.mark.slow
 def test_the_packaged_recipe_beats_the_zero_residual_return_after_a_short_budget(tmp_path, monkeypatch):
     """The packaged recipe on MicroGravityLanding-Residual-v3, 300 000 steps (about two minutes on two
@@ -1091,8 +1147,7 @@ def test_the_packaged_recipe_beats_the_zero_residual_return_after_a_short_budget
     learned = [episode_return(env, lambda o: policy.predict(o)[0].reshape(-1), s) for s in seeds]
     zero = [episode_return(env, lambda o: np.zeros(1, dtype=np.float32), s) for s in seeds]
     differences = np.array(learned) - np.array(zero)
-    standard_error = differences.std(ddof=1) / math.sqrt(differences.size)
-    assert differences.mean() > 2.0 * standard_error, (differences.mean(), standard_error)
+    assert differences.mean() > 2.0 * _standard_error(differences), differences
 
 
 @pytest.mark.slow
@@ -1106,9 +1161,9 @@ def test_the_working_ids_recipe_beats_its_zero_residual_at_the_collision_after_a
     cannot tell them apart (it scores x in every period, the long rest on the pad included: the
     shipped policy's paired return over seeds 1000-1019 is the zero residual's, -0.13 +- 0.96), so
     the test reads what the recipe is chosen by."""
-    from microg_env.controllers.registry import load_policy, policy_card
+    from microg_env.controllers.registry import ACTING_KEYS, load_policy, policy_card
     from microg_env.envs.settings import TaskSettings
-    from microg_env.learning.train import TrainSettings, train, validation_settings
+    from microg_env.learning.train import TrainSettings, train
     from microg_env.rollout.batch import evaluate_batch
 
     settings = TrainSettings(
@@ -1126,7 +1181,7 @@ def test_the_working_ids_recipe_beats_its_zero_residual_at_the_collision_after_a
     task = policy_card(folder)["env_kwargs"]
     assert task["residual_gate_on"] == "setpoint"
     assert task["base_controller"] == "adaptive-dither"
-    episodes = validation_settings(task) | {"scenario_sampler": task["scenario_sampler"]}
+    episodes = {key: value for key, value in task.items() if key not in ACTING_KEYS}  # the deployed policy acts
     learned = load_policy(folder, TaskSettings(**episodes).control_period_s)
     seeds = range(1000, 1040)
     x = {
@@ -1134,6 +1189,5 @@ def test_the_working_ids_recipe_beats_its_zero_residual_at_the_collision_after_a
         for name, c in (("learned", learned), ("zero", task["base_controller"]))
     }
     differences = x["learned"] - x["zero"]
-    standard_error = differences.std(ddof=1) / math.sqrt(differences.size)
     assert x["learned"].mean() < 0.95 * x["zero"].mean(), (x["learned"].mean(), x["zero"].mean())
-    assert differences.mean() < -2.0 * standard_error, (differences.mean(), standard_error)
+    assert differences.mean() < -2.0 * _standard_error(differences), differences
