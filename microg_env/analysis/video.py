@@ -31,17 +31,25 @@ X_COLOUR, FORCE_COLOUR = (255, 196, 0), (80, 200, 255)
 
 
 def display_opens() -> bool:
-    """Whether GLFW can open this process's display (``DISPLAY`` may name one that is not there)."""
+    """Whether GLFW can open an OpenGL window on this process's display (``DISPLAY`` may name one
+    that is not there, or an X server without GLX, where GLFW starts but makes no window)."""
     if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         return False
     import glfw
 
     reporting, glfw.ERROR_REPORTING = glfw.ERROR_REPORTING, "ignore"  # a failure is an answer here
     try:
-        opened = bool(glfw.init())
-        if opened:
+        if not glfw.init():
+            return False
+        try:
+            glfw.window_hint(glfw.VISIBLE, glfw.FALSE)
+            window = glfw.create_window(1, 1, "microg", None, None)
+            if window:
+                glfw.destroy_window(window)
+            return bool(window)
+        finally:
+            glfw.default_window_hints()
             glfw.terminate()
-        return opened
     finally:
         glfw.ERROR_REPORTING = reporting
 

@@ -30,7 +30,7 @@ def check_display() -> None:
         raise ValueError(f"microg view needs a window, but MUJOCO_GL is {os.environ['MUJOCO_GL']!r}; unset it")
     if not display_opens():
         shown = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
-        where = f"display {shown!r} does not open" if shown else "DISPLAY is not set"
+        where = f"display {shown!r} opens no OpenGL window (not there, or no GLX)" if shown else "DISPLAY is not set"
         raise ValueError(f"microg view needs a display and {where} (headless: microg run --video FILE)")
 
 

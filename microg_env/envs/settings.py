@@ -73,6 +73,9 @@ class TaskSettings:
         put("scenario_sampler", _sampler(self.scenario_sampler))
         if self.scenario_sampler is not None and self.scenario is not None:
             raise ValueError("give scenario (or scenarios) or scenario_sampler, not both")
+        if self.condition != 1 and (self.scenario is not None or self.scenario_sampler is not None):
+            given = "scenario" if self.scenario is not None else "scenario_sampler"
+            raise FieldError(f"condition {self.condition!r}: {given} gives the schedule; give one of them", "condition")
         if self.scenario is None:
             paper_condition(self.condition)  # a condition of the paper's, or an error naming it
         else:
@@ -99,18 +102,31 @@ class TaskSettings:
                 f"residual_gate_on {self.residual_gate_on!r}: there is no gate to place (residual_gate_m is None)",
                 "residual_gate_on",
             )
-        if self.action_mode != "residual":  # a speed action has no residual to scale, filter or gate
+        if self.action_mode != "residual":  # a speed action has no base, and no residual to scale, filter or gate
             for option in fields(self):
-                if option.name.startswith("residual_") and getattr(self, option.name) != option.default:
+                residual = option.name.startswith("residual_") or option.name == "base_controller"
+                if residual and getattr(self, option.name) != option.default:
                     raise FieldError(
-                        f"{option.name} {getattr(self, option.name)!r}: only action_mode='residual' has a "
-                        f"residual (action_mode is {self.action_mode!r})",
+                        f"{option.name} {getattr(self, option.name)!r}: only action_mode='residual' has a base "
+                        f"controller and a residual (action_mode is {self.action_mode!r})",
                         option.name,
                     )
+        if self.residual_highpass_order != 1 and self.residual_highpass_hz == 0.0:
+            raise FieldError(
+                f"residual_highpass_order {self.residual_highpass_order!r}: there is no high-pass to cascade "
+                "(residual_highpass_hz is 0)",
+                "residual_highpass_order",
+            )
         put("reward_scale_m", validate.between("reward_scale_m", self.reward_scale_m, 1e-12, 1e-3, "m"))
         put("reward_descent_weight", validate.between("reward_descent_weight", self.reward_descent_weight, 0.0, 1.0))
         scale = validate.between("reward_descent_scale_m_s", self.reward_descent_scale_m_s, 1e-12, 1e-3, "m/s")
         put("reward_descent_scale_m_s", scale)
+        if self.reward_descent_weight == 0.0 and scale != DESCENT_SCALE_M_S:
+            raise FieldError(
+                f"reward_descent_scale_m_s {scale!r}: the descent term it scales has no weight "
+                "(reward_descent_weight is 0)",
+                "reward_descent_scale_m_s",
+            )
         put("reset_noise_scale", validate.non_negative("reset_noise_scale", self.reset_noise_scale, "m"))
         if self.scenario_sampler is not None and self.reset_noise_scale > 0:
             raise FieldError(

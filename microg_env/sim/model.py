@@ -460,9 +460,17 @@ _TEMPLATE_ELEMENTS = {
 }
 
 
+#: Most bytes an MJCF template may hold (the packaged scene.xml and rig.xml: a few kB together).
+MAX_TEMPLATE_BYTES = 2**22
+
+
 def _load_template(xml_file: str | Path | None) -> mujoco.MjSpec:
     """The MJCF template (the packaged scene.xml by default), checked for every element the rig needs."""
     path = mjcf_dir() / "scene.xml" if xml_file is None else Path(xml_file)
+    if not path.is_file() or path.stat().st_size > MAX_TEMPLATE_BYTES:  # not a FIFO, a device or gigabytes
+        raise ValueError(
+            f"xml_file {str(path)!r} is not an MJCF file (a regular file of at most {MAX_TEMPLATE_BYTES} bytes)"
+        )
     try:
         spec = mujoco.MjSpec.from_file(str(path))
     except ValueError as error:
@@ -677,6 +685,8 @@ def export_spec(
     negative residual stiffness; the guide's static friction holds the balance within ~7 µm), so
     a slider step sends the lander to a guide stop. Test weights are in the model held off the
     lander, as at an episode's start (massless, drawn faint): give a weight's body its mass to place it.
+    The pad's ``solref`` is the one for what the foot carries at home, the lander alone
+    (:func:`pad_contact_solref`: it scales with the mass the contact sees).
     """
     spec, pad_contacts = build_spec(params, loads_kg, physics_step_s=physics_step_s)
     rig = Rig(spec.compile(), params, tuple(float(m) for m in loads_kg), pad_contacts, ideal_drive=False)
@@ -684,6 +694,8 @@ def export_spec(
     home = spec.key("home")
     rig.reset(data, float(home.qpos[0]))  # the weights held off the lander, as at an episode's start
     spec.tendon("balancer").springlength = tuple(rig.model.tendon_lengthspring[rig._balancer])
+    # the pad's solref for the mass it carries at home (the lander: the weights are held off)
+    spec.geom("pad").solref = tuple(rig.model.geom_solref[rig.model.geom("pad").id])
     for i in range(len(loads_kg)):  # held: massless and drawn faint until a user gives a body its mass
         body, geom = spec.body(f"load_{i}"), spec.geom(f"load_{i}")
         body.mass, body.inertia = 0.0, (0.0, 0.0, 0.0)

@@ -578,7 +578,22 @@ def test_bad_actions_raise(action):
         ({"residual_gate_m": "0"}, "residual_gate_m"),
         ({"residual_gate_m": True}, "residual_gate_m"),
         ({"residual_gate_m": float("nan")}, "residual_gate_m"),
-        ({"residual_gate_m": 0.0}, r"residual_gate_m 0.0: only action_mode='residual' has a residual"),  # was ignored
+        ({"residual_gate_m": 0.0}, r"residual_gate_m 0.0: only action_mode='residual' has a base controller"),
+        # each of these was ignored while its siblings were refused
+        ({"base_controller": "adaptive"}, r"base_controller 'adaptive': only action_mode='residual'"),
+        ({"condition": 2, "scenario_sampler": "training"}, "condition 2: scenario_sampler gives the schedule"),
+        (
+            {"condition": 3, "scenario": Scenario("s", (LoadStep(0.49),), 0.03)},
+            "condition 3: scenario gives the schedule",
+        ),
+        (
+            {"action_mode": "residual", "residual_highpass_order": 2},
+            "residual_highpass_order 2: there is no high-pass to cascade",
+        ),
+        (
+            {"reward_descent_scale_m_s": 1e-5},
+            "reward_descent_scale_m_s 1e-05: the descent term it scales has no weight",
+        ),
         ({"residual_highpass_hz": 2.0}, r"residual_highpass_hz 2.0: only action_mode='residual'"),
         (
             {"action_mode": "residual", "residual_gate_on": "filter"},
