@@ -5,6 +5,8 @@ MuJoCo model (friction, cogging, the torque limit) are removed from the paramete
 :func:`apply_imperfections`; the drive's lag is removed by building the ideal drive (a speed
 source, :func:`microg_env.sim.model.build_rig`); the environment applies the others (sensor noise
 and quantisation, one control period of command delay, balancer drift) while it steps.
+:func:`check_parameters_used` refuses a rig parameter set to a value that an imperfection switched
+off (or the sensor set) would leave without effect.
 :class:`DomainRandomization` draws a perturbed lander, pad, friction and set of test weights for
 each episode, and with :meth:`DomainRandomization.full` the drive (cogging, motor friction law,
 speed loop, torque filter); every draw is a model field value, so a reset never recompiles.
@@ -18,7 +20,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from microg_env import validate
-from microg_env.params import LOAD_CAPACITY_KG, RigParams
+from microg_env.params import LOAD_CAPACITY_KG, RigParams, parameter_paths
 from microg_env.scenarios import Scenario
 from microg_env.sim.limits import check_pad
 from microg_env.sim.model import validate_loads
@@ -73,6 +75,57 @@ def apply_imperfections(params: RigParams, imperfections: Imperfections) -> RigP
     if not imperfections.cogging:
         servo = replace(servo, cogging_torque_n_m=0.0)
     return replace(params, servo=servo, screw=screw, qzs=qzs)
+
+
+#: The parts of :class:`RigParams` that the environment reads only while an imperfection is on, by
+#: its name: every sensor's noise, bias and resolution (off: exact readings) and the balancer's drift
+#: (off: no drift rate, so nothing divides by the gas's temperature).
+READ_ONLY_WHEN_ON = {"sensor_noise": "sensors", "balancer_drift": "drift"}
+#: The sensor parameters that only one observation entry reads, by that entry: a sensor set that
+#: lacks it (:data:`~microg_env.interface.SENSOR_SETS`) leaves them unread. The accelerometer's noise
+#: and bias are read on every set: its reading is the trajectory's ``accelerometer_m_s2`` and the
+#: ``accelerometer_descent_accel_m_s2`` metric.
+READ_ONLY_BY_ENTRY = {"pad_force": ("sensors.force_noise_n",)}
+
+
+def check_parameters_used(
+    params: RigParams, imperfections: Imperfections, sensor_set: str, missing: tuple[str, ...], source: str
+) -> None:
+    """Raise a FieldError naming the first parameter set in ``params`` (a value other than the
+    paper's rig's, ``RigParams()``) that the run would not use: one that an imperfection that is off
+    overwrites (:func:`apply_imperfections`) or does not read (:data:`READ_ONLY_WHEN_ON`), or one
+    only a reading in ``missing``, the observation entries ``sensor_set`` lacks, reads
+    (:data:`READ_ONLY_BY_ENTRY`). ``source`` names what set it (``RunSpec.overrides``, ``params``).
+    A parameter left at its default is never refused."""
+    given, defaults = parameter_paths(params), parameter_paths()
+    chosen = [path for path, value in given.items() if value != defaults[path]]
+    for name in IMPERFECTION_NAMES:
+        if getattr(imperfections, name):
+            continue
+        applied = parameter_paths(apply_imperfections(params, replace(Imperfections(), **{name: False})))
+        unread = READ_ONLY_WHEN_ON.get(name)
+        for path in chosen:
+            if applied[path] != given[path]:
+                effect = f"which sets it to {applied[path]!r}"
+            elif path.partition(".")[0] == unread:
+                effect = "which leaves it unread"
+            else:
+                continue
+            raise FieldError(
+                f"{source} {path} = {given[path]!r}: imperfection {name!r} is off, {effect}; "
+                "switch it on or leave the parameter out",
+                path,
+                "imperfections",
+            )
+    for entry in missing:
+        for path in READ_ONLY_BY_ENTRY.get(entry, ()):
+            if path in chosen:
+                raise FieldError(
+                    f"{source} {path} = {given[path]!r}: sensor_set {sensor_set!r} has no {entry} reading, which "
+                    "leaves it unread; choose another sensor set or leave the parameter out",
+                    path,
+                    "sensor_set",
+                )
 
 
 #: How much wider than :meth:`DomainRandomization.full` held-out test plants are drawn.

@@ -16,6 +16,12 @@ from gymnasium import spaces
 from microg_env import validate
 from microg_env.params import ScrewStageParams
 
+#: The classical baselines (a residual action's base controllers; :mod:`microg_env.controllers`
+#: builds them): the paper's PID, its derivative-on-measurement variant, the PID with
+#: the nominal model's feed-forward, that feed-forward learning the motor's cogging as it runs
+#: (``adaptive``), that with a dither on its setpoint against the friction (``adaptive-dither``),
+#: and the bound: the feed-forward told the episode's true plant (``oracle``, not deployable).
+BASELINES = ("pid", "pid-dom", "feedforward", "adaptive", "adaptive-dither", "oracle")
 #: Observation entries and the scale each is divided by (SI units / scale = order one).
 OBSERVATION_SCALES: dict[str, float] = {
     "x": 1e-4,  # grating ruler, m (100 um)

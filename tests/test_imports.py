@@ -16,7 +16,7 @@ LAYERS = (
     ("scenarios", "trajectory"),
     ("sim",),
     ("imperfections",),
-    ("interface",),  # the env-controller contract
+    ("interface", "task"),  # the env-controller contract, and the task settings it is made with
     ("controllers",),
     ("envs",),
     ("analysis",),  # pure functions of a trajectory

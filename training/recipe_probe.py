@@ -197,14 +197,14 @@ def actor(model, normalized, stack: int, blind: list[int]):
 def export(model, normalized, blind: list[int], folder: Path, card: dict) -> None:
     """The unstacked actor as a policy folder on the observation alone: the first layer's columns
     of privileged entries dropped, of blind ones zeroed (their statistics the identity)."""
-    weights, biases, activation, squash = actor_layers(model)
+    weights, biases, activation, squash, mean_clip = actor_layers(model)
     size = len(OBSERVATION_INDEX)
     first = weights[0][:, :size].copy()
     first[:, blind] = 0.0
     mean, var = normalized.obs_rms.mean[:size].copy(), normalized.obs_rms.var[:size].copy()
     mean[blind], var[blind] = 0.0, 1.0
     clip, epsilon = float(normalized.clip_obs), float(normalized.epsilon)
-    network = MLPPolicy((first, *weights[1:]), biases, activation, squash, mean, var, clip, epsilon)
+    network = MLPPolicy((first, *weights[1:]), biases, activation, squash, mean, var, clip, epsilon, mean_clip)
     folder.mkdir(parents=True, exist_ok=True)
     network.save(folder / NETWORK_FILE)
     (folder / CARD_FILE).write_text(json.dumps(card, indent=2) + "\n", encoding="utf-8")

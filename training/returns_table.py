@@ -34,10 +34,10 @@ from microg_env.controllers.registry import (
     is_policy_folder,
     shipped_policy_folder,
 )
-from microg_env.envs.settings import TaskSettings
 from microg_env.experiments.comparison import TEST_SEED
 from microg_env.learning.train import ENV_IDS as TRAINED_IDS
 from microg_env.scenarios import comparison_scenarios
+from microg_env.task import TaskSettings
 
 #: The learning task's ids (the residual ones ``microg train`` trains on), the newest first (the default).
 ENV_IDS = tuple(

@@ -23,10 +23,10 @@ import numpy as np
 from microg_env.analysis.metrics import RunMetrics
 from microg_env.analysis.summary import finite_mean, selection_cost
 from microg_env.controllers.registry import load_policy, policy_card
-from microg_env.envs.settings import TaskSettings
 from microg_env.experiments.comparison import TEST_SEED
 from microg_env.interface import SENSOR_SETS
 from microg_env.learning.train import VALIDATION_SEED, validation_runs, validation_settings
+from microg_env.task import TaskSettings
 
 #: How many validation episodes, from VALIDATION_SEED, choose the seed unless told.
 EPISODES = 200

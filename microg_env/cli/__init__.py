@@ -1,18 +1,23 @@
 """The ``microg`` command.
 
 Every user error (a bad option or value, an unwritable output) prints one line to stderr naming
-the option and exits with code 2, before any work is done; Ctrl-C prints one line and exits with
-130; output piped into a closed reader (``| head``) ends quietly. The commands live in
-:mod:`microg_env.cli.rig` (the rig and the paper) and :mod:`microg_env.cli.learning` (learned
-controllers); what they share in :mod:`microg_env.cli.common`.
+the option and exits with code 2, before any work is done; Ctrl-C, and SIGTERM (``kill``'s
+default) likewise, stops the command with its cleanup (no process of its own left behind), prints
+one line and exits with 130; output piped into a closed reader (``| head``) ends quietly. The
+commands live in :mod:`microg_env.cli.rig` (the rig and the paper) and
+:mod:`microg_env.cli.learning` (learned controllers); what they share in
+:mod:`microg_env.cli.common`.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 
 from microg_env.cli.common import Parser, UsageError, one_line
 from microg_env.version import __version__
@@ -61,6 +66,20 @@ def _start_pool(argv: list[str]) -> None:
         start_fork_server(POOLED_COMMANDS[argv[0]])
 
 
+@contextlib.contextmanager
+def _sigterm_as_ctrl_c() -> Iterator[None]:
+    """Within, on the main thread: SIGTERM raises KeyboardInterrupt, as Ctrl-C does (by default it
+    ends the process at once, skipping the cleanup that Ctrl-C runs)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``microg`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -68,18 +87,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         build_parser().print_help()
         return 0
     try:
-        _check_top_level(argv)
-        _start_pool(argv)
-        args = build_parser().parse_args(argv)
-        args.argv = argv
-        return args.handler(args)
+        with _sigterm_as_ctrl_c():
+            _check_top_level(argv)
+            _start_pool(argv)
+            args = build_parser().parse_args(argv)
+            args.argv = argv
+            return args.handler(args)
     except UsageError as error:
         print(one_line(str(error)), file=sys.stderr)
         return 2
     except ValueError as error:
         print(f"microg: error: {one_line(str(error))}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT, no traceback
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: one line, the shell's code for Ctrl-C, no traceback
         print("microg: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:

@@ -22,7 +22,8 @@ from microg_env.controllers.registry import CONTROLLER_NAMES
 from microg_env.experiments.comparison import MAX_SEEDS, MAX_WORKERS, TEST_SEED
 from microg_env.imperfections import PRESETS
 from microg_env.learning.hyperparams import ALGORITHMS, CONTRIB_ALGORITHMS, MAX_ENVS
-from microg_env.learning.train import MAX_EVAL_EPISODES, TrainSettings
+from microg_env.learning.train import MAX_EVAL_EPISODES, TRAIN_EXTRA, TrainSettings
+from microg_env.validate import shown
 
 #: ``microg train``'s options that set a run (``args.yml``), by the TrainSettings field they fill.
 _RUN_FIELDS = {
@@ -47,7 +48,7 @@ def _check_train_extra(algo: str | None) -> None:
         if algo in CONTRIB_ALGORITHMS:
             import sb3_contrib  # noqa: F401
     except ImportError:
-        raise ValueError("microg train needs the train extra: pip install 'microg-env[train]'") from None
+        raise ValueError(TRAIN_EXTRA) from None
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
@@ -62,14 +63,17 @@ def _cmd_train(args: argparse.Namespace) -> int:
         resume = Path(args.resume)
         if not (args.resume.strip() and resume.is_dir()):
             raise ValueError(f"--resume {args.resume!r}: no such run folder")
-        _, run, _, _ = resumed_run(resume, settings)  # a run that cannot go on is named before anything is written
+        # A run that cannot go on (its algorithm not installed among them) is named before anything is written.
+        _, run, _, _ = resumed_run(resume, settings)
         algo = run.algo
-        _check_train_extra(algo)  # a run resumed without --algo
         changed = [
-            option for option, field in _RUN_FIELDS.items() if field in given and given[field] != getattr(run, field)
+            f"{option} cannot change ({shown(given[field])} asked, {shown(getattr(run, field))} in "
+            f"{str(resume / 'args.yml')!r})"
+            for option, field in _RUN_FIELDS.items()
+            if field in given and given[field] != getattr(run, field)
         ]
         if changed:
-            raise ValueError(f"--resume: {', '.join(changed)} cannot change; a run continues with its own args.yml")
+            raise ValueError(f"--resume: {'; '.join(changed)}; a run continues with its own args.yml")
     else:
         try:
             resolve(settings)  # a bad file or entry is named before anything is written
@@ -110,7 +114,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     controllers = args.controllers or list(CONTROLLER_NAMES)
     for name in controllers:
         try:
-            check_controller_name(name)
+            check_controller_name(name, args.sensors)
         except ValueError as error:
             raise ValueError(f"--controllers: {error}") from None
     last = args.first_seed + args.seeds - 1

@@ -19,7 +19,9 @@ before it runs, is :mod:`microg_env.controllers.registry`'s.
 from __future__ import annotations
 
 import json
+import math
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -45,8 +47,21 @@ from microg_env.interface import (
 )
 from microg_env.params import CONTROL_PERIOD_S
 
-#: Activations of the exported networks (stable-baselines3's defaults: PPO tanh, SAC and TQC ReLU).
-ACTIVATIONS = {"tanh": np.tanh, "relu": lambda z: np.maximum(z, 0.0)}
+_erf = np.frompyfunc(math.erf, 1, 1)  # NumPy has no erf
+#: Activations of the exported networks, torch's with their default parameters: those a policy_kwargs may name
+#: (``microg_env.learning.hyperparams.ACTIVATION_NAMES``; stable-baselines3's defaults: PPO tanh, SAC, TQC and
+#: CrossQ ReLU).
+ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "tanh": np.tanh,
+    "relu": lambda z: np.maximum(z, 0.0),
+    "elu": lambda z: np.where(z > 0.0, z, np.expm1(np.minimum(z, 0.0))),
+    "leaky_relu": lambda z: np.where(z >= 0.0, z, 0.01 * z),
+    "gelu": lambda z: 0.5 * z * (1.0 + _erf(z / math.sqrt(2.0)).astype(np.float64)),  # torch's exact GELU
+    "silu": lambda z: z * 0.5 * (1.0 + np.tanh(0.5 * z)),  # z sigmoid(z), without exp's overflow
+}
+#: The smallest observation clip a policy may have, in standard deviations (VecNormalize's default
+#: is 10): a clip inside one makes most observations one constant, a policy blind to them.
+MIN_CLIP_OBS = 1.0
 #: Files of an exported policy folder.
 NETWORK_FILE, CARD_FILE = "policy.npz", "policy.json"
 #: Most bytes an exported network may hold once unpacked (the shipped one: 23 kB); checked from the
@@ -59,20 +74,35 @@ class MLPPolicy:
     """A deterministic actor: normalise the observation, run the layers, squash or clip to [-1, 1].
 
     ``predict`` matches stable-baselines3's ``model.predict(obs_normalised, deterministic=True)``.
+    ``clip_obs`` is VecNormalize's (the exporter writes float32's largest for no normalisation);
+    ``mean_clip``, the clip of the output to +-mean_clip before its tanh (SAC's, TQC's and CrossQ's
+    ``clip_mean`` with gSDE; 0: none).
     """
 
     weights: tuple[np.ndarray, ...]  # (out, in) per layer, as torch stores them
     biases: tuple[np.ndarray, ...]
     activation: str  # between hidden layers
-    squash: bool  # tanh on the output (SAC, TQC) rather than a clip (PPO)
+    squash: bool  # tanh on the output (SAC, TQC, CrossQ, PPO's squash_output) rather than a clip (PPO)
     obs_mean: np.ndarray
     obs_var: np.ndarray
     clip_obs: float
     epsilon: float = 1e-8
+    mean_clip: float = 0.0
 
     def __post_init__(self) -> None:
         if self.activation not in ACTIVATIONS:
             raise ValueError(f"activation must be one of {', '.join(ACTIVATIONS)}, got {self.activation!r}")
+        if not isinstance(self.squash, bool):
+            raise ValueError(f"squash must be true or false, got {validate.shown(self.squash)}")
+        object.__setattr__(
+            self,
+            "clip_obs",
+            validate.at_least(
+                "clip_obs", self.clip_obs, MIN_CLIP_OBS, why="a clip inside one standard deviation blinds the policy"
+            ),
+        )
+        object.__setattr__(self, "epsilon", validate.non_negative("epsilon", self.epsilon))
+        object.__setattr__(self, "mean_clip", validate.non_negative("mean_clip", self.mean_clip))
         if len(self.weights) != len(self.biases) or not self.weights:
             raise ValueError("a policy needs as many bias vectors as weight matrices, and at least one layer")
         arrays = (*self.weights, *self.biases, self.obs_mean, self.obs_var)
@@ -85,6 +115,8 @@ class MLPPolicy:
             )
         if (self.obs_var < 0).any():
             raise ValueError("obs_var must not be negative")
+        if (self.obs_var + self.epsilon <= 0).any():
+            raise ValueError("obs_var + epsilon must be positive, the deviation every observation is divided by")
         if self.weights[-1].ndim != 2 or self.weights[-1].shape[0] != 1:
             raise ValueError(f"the last layer must give the one action, got weight {self.weights[-1].shape}")
         size = self.obs_mean.shape[0]
@@ -106,6 +138,8 @@ class MLPPolicy:
             z = z @ weight.T + bias
             if i < len(self.weights) - 1:
                 z = act(z)
+        if self.mean_clip > 0.0:
+            z = np.minimum(np.maximum(z, -self.mean_clip), self.mean_clip)
         action = np.tanh(z) if self.squash else np.minimum(np.maximum(z, -1.0), 1.0)
         return action.astype(np.float32), None
 
@@ -118,6 +152,7 @@ class MLPPolicy:
             "squash": self.squash,
             "clip_obs": self.clip_obs,
             "epsilon": self.epsilon,
+            "mean_clip": self.mean_clip,
         }
         with atomic_path(path) as temporary, open(temporary, "wb") as stream:
             np.savez(stream, **arrays, meta=np.array(json.dumps(meta)))
@@ -133,16 +168,19 @@ class MLPPolicy:
             raise ValueError(f"it unpacks to {unpacked} bytes, more than the {MAX_NETWORK_BYTES} a policy may hold")
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
+            if not isinstance(meta, dict):
+                raise ValueError(f"its meta must be a JSON object, got {validate.shown(meta)}")
             layers = sum(1 for key in data.files if key.startswith("weight_"))
             return cls(
                 tuple(data[f"weight_{i}"] for i in range(layers)),
                 tuple(data[f"bias_{i}"] for i in range(layers)),
                 meta["activation"],
-                bool(meta["squash"]),
+                meta["squash"],
                 data["obs_mean"],
                 data["obs_var"],
-                float(meta["clip_obs"]),
-                float(meta["epsilon"]),
+                meta["clip_obs"],
+                meta["epsilon"],
+                meta.get("mean_clip", 0.0),  # absent from files written before it
             )
 
 

@@ -8,13 +8,16 @@ sizes) and deployed as it was trained (:func:`deployed_controller`).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import zipfile
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
+
+import gymnasium as gym
 
 from microg_env import validate
 from microg_env.controllers.base import Controller
@@ -22,22 +25,16 @@ from microg_env.controllers.feedforward import AdaptiveFeedforward, DitheredAdap
 from microg_env.controllers.pid import PID, load_gains
 from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy, PolicyController
 from microg_env.interface import (
-    ACTION_MODES,
-    RESIDUAL_HIGHPASS_RANGE_HZ,
+    BASELINES,
+    MIXED_SENSORS,
     RESIDUAL_LIMIT_M,
+    SENSOR_SETS,
     hidden_entries,
-    highpass_order,
-    residual_gate,
-    residual_gate_point,
 )
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, RigParams
-from microg_env.validate import FieldError
+from microg_env.task import TaskSettings
+from microg_env.validate import FieldError, fault
 
-#: The classical baselines: the paper's PID, its derivative-on-measurement variant, the PID with
-#: the nominal model's feed-forward, that feed-forward learning the motor's cogging as it runs
-#: (``adaptive``), that with a dither on its setpoint against the friction (``adaptive-dither``),
-#: and the bound: the feed-forward told the episode's true plant (``oracle``, not deployable).
-BASELINES = ("pid", "pid-dom", "feedforward", "adaptive", "adaptive-dither", "oracle")
 #: The baselines built on the feed-forward (their feedback loop is ``pid``'s).
 FEEDFORWARDS = {
     "feedforward": Feedforward,
@@ -47,6 +44,25 @@ FEEDFORWARDS = {
 }
 #: Most bytes a policy card may hold.
 MAX_CARD_BYTES = 2**20
+#: The keys of a policy card: those ``microg train`` writes (:mod:`microg_env.learning.train`, its
+#: run's ``card``); env_kwargs, the task, is the one a card must hold (a probe's card holds it alone).
+CARD_KEYS = (
+    "env_id",
+    "env_kwargs",
+    "algo",
+    "command",
+    "resume_commands",
+    "seed",
+    "timesteps",
+    "target_timesteps",
+    "wall_s",
+    "machine",
+    "hyperparams",
+    "validation",
+    "versions",
+)
+#: The entry point of the environment ids this package registers (``MicroGravityLanding-*``).
+ENTRY_POINT = "microg_env.envs.landing:MicroGravityLandingEnv"
 
 
 def is_policy_folder(name: str) -> bool:
@@ -54,12 +70,14 @@ def is_policy_folder(name: str) -> bool:
     return name not in CONTROLLER_NAMES and (Path(name) / CARD_FILE).is_file()
 
 
-def check_controller_name(name: str) -> str:
-    """``name`` if it selects a controller, else a ValueError listing what does."""
-    if name in CONTROLLER_NAMES:
+def check_controller_name(name: str, sensor_set: str = "extended") -> str:
+    """``name`` if it selects a controller that runs on a rig of ``sensor_set`` (a policy: one
+    trained on what that rig reads, :func:`check_sensor_set`), else a ValueError listing what does."""
+    if name in BASELINES:
         return name
-    if is_policy_folder(name):
-        check_policy_folder(name)  # a broken folder is named now, not after the work has started
+    if name in CONTROLLER_NAMES or is_policy_folder(name):
+        card, _ = check_policy_folder(policy_folder(name))  # a broken folder named now, not once the work started
+        check_sensor_set(name, card["env_kwargs"], sensor_set)
         return name
     raise ValueError(
         f"controller must be one of {', '.join(CONTROLLER_NAMES)} or a policy folder (holding {CARD_FILE}), "
@@ -67,14 +85,25 @@ def check_controller_name(name: str) -> str:
     )
 
 
+def policy_folder(name: str) -> Path:
+    """The folder of policy ``name``: a shipped policy's, or the folder ``name`` is the path of."""
+    return Path(name) if is_policy_folder(name) else shipped_policy_folder(name)
+
+
 def make_controller(
-    name: str, control_period_s: float, params: RigParams | None = None, gains: Mapping[str, float] | None = None
+    name: str,
+    control_period_s: float,
+    params: RigParams | None = None,
+    gains: Mapping[str, float] | None = None,
+    sensor_set: str = "extended",
+    digest: str | None = None,
 ) -> Controller:
     """The named controller with its tuned settings; ``params`` is the nominal rig a model-based
     controller assumes (default: the paper's rig, whatever the plant it drives); ``gains`` replace
     fields of a baseline's tuned PID gains (``{"ki_per_s2": 5000.0}``; the feed-forward's feedback loop
-    is ``pid``'s)."""
-    check_controller_name(name)
+    is ``pid``'s); ``sensor_set``: the rig's (a policy is refused on one that lacks what it read in
+    training); ``digest``: a policy's contents as a run was specified (:func:`load_policy`)."""
+    check_controller_name(name, sensor_set)
     validate.between("control_period_s", control_period_s, *CONTROL_PERIOD_RANGE_S, "s")
     if gains and name not in BASELINES:
         raise ValueError(f"gains {dict(gains)!r}: controller {name!r} has no PID gains to replace")
@@ -83,8 +112,7 @@ def make_controller(
         if name in FEEDFORWARDS:
             return FEEDFORWARDS[name](control_period_s, params, gains=tuned)
         return PID(tuned, control_period_s, derivative_on_measurement=name == "pid-dom")
-    folder = Path(name) if is_policy_folder(name) else shipped_policy_folder(name)
-    return load_policy(folder, control_period_s)
+    return load_policy(policy_folder(name), control_period_s, sensor_set, digest)
 
 
 def shipped_policies() -> tuple[str, ...]:
@@ -100,23 +128,42 @@ CONTROLLER_NAMES = BASELINES + shipped_policies()
 
 
 def policy_card(folder: str | Path) -> dict[str, Any]:
-    """The ``policy.json`` of an exported policy folder: how it acts, how it was trained."""
+    """The ``policy.json`` of an exported policy folder: how it acts, how it was trained; a
+    ValueError naming the file if it is not a card :data:`CARD_KEYS` (each once) whose env_kwargs
+    are settings of the task that a policy may be deployed with and whose env_id they agree with."""
     path = Path(folder) / CARD_FILE
     if not path.exists():
         raise ValueError(f"policy folder {str(folder)!r} has no {CARD_FILE}")
     if not path.is_file() or path.stat().st_size > MAX_CARD_BYTES:
         raise ValueError(f"{str(path)!r} is not a policy card (a regular file of at most {MAX_CARD_BYTES} bytes)")
     try:
-        card = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        card = json.loads(path.read_text(encoding="utf-8"), object_pairs_hook=_once_each)
+    except (OSError, UnicodeDecodeError, ValueError) as error:  # ValueError: JSONDecodeError, a repeated key
         raise ValueError(f"cannot read {str(path)!r}: {error}") from None
     if not (isinstance(card, dict) and isinstance(card.get("env_kwargs"), dict)):
         raise ValueError(f"{str(path)!r} is not a policy card (a JSON object with an env_kwargs object)")
+    unknown = sorted(set(card) - set(CARD_KEYS))
+    if unknown:
+        raise ValueError(f"{str(path)!r}: unknown key {unknown[0]!r}; a policy card holds {', '.join(CARD_KEYS)}")
     try:
         _check_deployment(card["env_kwargs"])
     except ValueError as error:
         raise ValueError(f"{str(path)!r}: env_kwargs.{error}") from None
+    try:
+        _check_env_id(card)
+    except ValueError as error:
+        raise ValueError(f"{str(path)!r}: {error}") from None
     return card
+
+
+def _once_each(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object's pairs as a dict, or a ValueError naming a key given twice (the last would win)."""
+    seen = set()
+    for key, _ in pairs:
+        if key in seen:
+            raise ValueError(f"key {key!r} is given twice")
+        seen.add(key)
+    return dict(pairs)
 
 
 #: The env_kwargs of a policy card that say how the deployed policy acts (:func:`_check_deployment`
@@ -135,20 +182,76 @@ ACTING_KEYS = (
 
 
 def _check_deployment(env: dict[str, Any]) -> None:
-    """The env_kwargs a deployed policy reads: of the right kinds and ranges, the base controller a
-    classical one (a policy on a policy, or on itself, is refused)."""
-    validate.choice("action_mode", env.get("action_mode", "speed"), ACTION_MODES)
-    validate.choice("base_controller", env.get("base_controller", "pid"), BASELINES)
-    if type(env.get("decision_period", 1)) is not int:
-        raise ValueError(f"decision_period must be an integer, got {env['decision_period']!r}")
-    validate.integer("decision_period", env.get("decision_period", 1), 1, 1000)
-    validate.between("control_period_s", env.get("control_period_s", CONTROL_PERIOD_S), *CONTROL_PERIOD_RANGE_S, "s")
-    validate.positive("residual_limit_m", env.get("residual_limit_m", RESIDUAL_LIMIT_M), "m", 1e-3)
-    validate.between("residual_highpass_hz", env.get("residual_highpass_hz", 0.0), *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
-    highpass_order(env.get("residual_highpass_order", 1))
-    residual_gate(env.get("residual_gate_m"))
-    residual_gate_point(env.get("residual_gate_on", "action"))
-    hidden_entries(env.get("hidden_observations", ()))
+    """The env_kwargs of a card are the task's settings, read through the task's own check
+    (:class:`~microg_env.task.TaskSettings`: each of its kind and range, and the combinations the
+    environment refuses refused here too), so a policy is deployed only with settings it could have
+    been trained with; the base controller a classical one (a policy on a policy is refused)."""
+    unknown = sorted(set(env) - set(_task_defaults()))
+    if unknown:
+        raise ValueError(f"{unknown[0]} is not a setting of the task (a keyword argument of MicroGravityLanding-v1)")
+    try:
+        TaskSettings(**env)
+    except FieldError as error:
+        raise ValueError(str(error)) from None
+    except (TypeError, ValueError) as error:  # a value of the wrong kind for a record the task builds
+        raise ValueError(f"{fault(error)} (not a setting the task takes)") from None
+
+
+def _task_defaults() -> dict[str, Any]:
+    """The task's settings (the environment's keyword arguments) with their defaults."""
+    return {option.name: option.default for option in fields(TaskSettings)}
+
+
+def _check_env_id(card: dict[str, Any]) -> None:
+    """A card's env_id, if it has one: an id this package registers whose acting settings
+    (:data:`ACTING_KEYS`) the card's env_kwargs do not contradict. A run's env_kwargs are its id's
+    registered ones updated by its hyperparameter entry's (:mod:`microg_env.learning.hyperparams`),
+    so an entry may change one (``training/sac_on_dither.yml`` gives v4 another base controller),
+    but one left out is deployed at its default: where the id registers another value, the policy
+    was trained with that one."""
+    if "env_id" not in card:
+        return
+    env_id, env = card["env_id"], card["env_kwargs"]
+    ours = sorted(name for name, spec in gym.registry.items() if spec.entry_point == ENTRY_POINT)
+    if not isinstance(env_id, str) or env_id not in ours:
+        raise ValueError(f"env_id must be one of {', '.join(ours)}, got {validate.shown(env_id)}")
+    defaults, registered = _task_defaults(), gym.registry[env_id].kwargs
+    for key in ACTING_KEYS:
+        if key in registered and key not in env and registered[key] != defaults[key]:
+            raise ValueError(
+                f"env_kwargs leaves out {key}: deployed at its default {defaults[key]!r}, while env_id {env_id!r} "
+                f"trained at its registered {registered[key]!r}"
+            )
+
+
+def deployed_hidden(env_kwargs: Mapping[str, Any]) -> tuple[str, ...]:
+    """The observation entries a policy trained with ``env_kwargs`` reads as 0 when deployed: its
+    ``hidden_observations`` and the sensors its training rig lacked (:data:`SENSOR_SETS`; none when
+    trained on both, ``sensor_set="mixed"``), so that on any rig it sees what training showed it."""
+    trained = env_kwargs.get("sensor_set", "extended")
+    lacked = () if trained == MIXED_SENSORS else SENSOR_SETS[trained]
+    return tuple(dict.fromkeys((*hidden_entries(env_kwargs.get("hidden_observations", ())), *lacked)))
+
+
+def check_sensor_set(name: str, env_kwargs: Mapping[str, Any], sensor_set: str) -> None:
+    """A ValueError naming policy ``name``, the sensor set it was trained on and ``sensor_set`` (a
+    rig's; "mixed": either) if that rig lacks a sensor the policy read in training: it would read 0
+    there, as it never did. (A policy trained on both rigs met both; one that hides an entry reads
+    0 there on every rig, :func:`deployed_hidden`.)"""
+    validate.choice("sensor_set", sensor_set, (*SENSOR_SETS, MIXED_SENSORS))
+    trained = env_kwargs.get("sensor_set", "extended")
+    if trained == MIXED_SENSORS:
+        return
+    shown_zero = set(deployed_hidden(env_kwargs))
+    runs_on = [rig for rig, lacks in SENSOR_SETS.items() if set(lacks) <= shown_zero]
+    for rig in tuple(SENSOR_SETS) if sensor_set == MIXED_SENSORS else (sensor_set,):
+        unread = [entry for entry in SENSOR_SETS[rig] if entry not in shown_zero]
+        if unread:
+            drawn = f" (drawn by {sensor_set!r})" if rig != sensor_set else ""
+            raise ValueError(
+                f"policy {name!r} was trained on the {trained!r} sensor set and reads {', '.join(unread)}, which "
+                f"the {rig!r} sensor set{drawn} lacks; it runs on sensor set {' or '.join(map(repr, runs_on))} only"
+            )
 
 
 def shipped_policy_folder(name: str) -> Path:
@@ -166,11 +269,22 @@ def check_policy_folder(folder: str | Path) -> tuple[dict[str, Any], MLPPolicy]:
         raise ValueError(f"policy folder {str(folder)!r}: cannot read {NETWORK_FILE} ({error})") from None
 
 
-def load_policy(folder: str | Path, control_period_s: float) -> PolicyController:
+def load_policy(
+    folder: str | Path, control_period_s: float, sensor_set: str = "extended", digest: str | None = None
+) -> PolicyController:
     """The exported policy in ``folder`` as a controller; it must run at the control period it
-    was trained at (its decision period and base controller's tuning are tied to it)."""
+    was trained at (its decision period and base controller's tuning are tied to it), on a rig of
+    a ``sensor_set`` that reads what it read in training (:func:`check_sensor_set`). With ``digest``
+    (the contents a run was specified with, :func:`controller_digest`) its files must still read so
+    once loaded: a run is never of a policy other than the one its identity names."""
     card, policy = check_policy_folder(folder)
+    if digest is not None and folder_digest(folder) != digest:
+        raise ValueError(
+            f"policy folder {str(folder)!r} changed since the run was specified (its files no longer read "
+            f"{digest}): run it again"
+        )
     env = card["env_kwargs"]
+    check_sensor_set(Path(folder).name, env, sensor_set)
     trained_period = float(env.get("control_period_s", CONTROL_PERIOD_S))
     if abs(control_period_s - trained_period) > 1e-9:
         raise FieldError(
@@ -186,7 +300,8 @@ def deployed_controller(
 ) -> PolicyController:
     """``policy``, trained in ``MicroGravityLanding-v1`` with ``env_kwargs``, as the controller it
     is deployed as: a residual on its base controller, acting every decision period (a
-    ``controller``, :class:`PolicyController` or a subclass of it)."""
+    ``controller``, :class:`PolicyController` or a subclass of it), shown what it was shown in
+    training (:func:`deployed_hidden`)."""
     residual = env_kwargs.get("action_mode", "speed") == "residual"
     period = float(env_kwargs.get("control_period_s", CONTROL_PERIOD_S))
     return controller(
@@ -197,7 +312,28 @@ def deployed_controller(
         residual_highpass_hz=float(env_kwargs.get("residual_highpass_hz", 0.0)),
         control_period_s=period,
         residual_highpass_order=env_kwargs.get("residual_highpass_order", 1),
-        hidden_observations=env_kwargs.get("hidden_observations", ()),
+        hidden_observations=deployed_hidden(env_kwargs),
         residual_gate_m=env_kwargs.get("residual_gate_m"),
         residual_gate_on=env_kwargs.get("residual_gate_on", "action"),
     )
+
+
+#: The files of a policy folder that define how it acts: what :func:`controller_digest` reads.
+BEHAVIOUR_FILES = (CARD_FILE, NETWORK_FILE)
+
+
+def controller_digest(name: str) -> str | None:
+    """What a policy is, for a run's identity: the SHA-256 of its folder's :data:`BEHAVIOUR_FILES`
+    (a shipped policy by name, or a folder by any spelling of its path: the same contents, the same
+    digest; new contents in the same folder, a new one). None for a classical baseline."""
+    return None if name in BASELINES else folder_digest(policy_folder(name))
+
+
+def folder_digest(folder: str | Path) -> str:
+    """The SHA-256 of a policy folder's :data:`BEHAVIOUR_FILES`, as :func:`controller_digest` gives it."""
+    digest = hashlib.sha256()
+    for file in BEHAVIOUR_FILES:
+        data = (Path(folder) / file).read_bytes()
+        digest.update(f"{file}:{len(data)}:".encode())
+        digest.update(data)
+    return f"sha256:{digest.hexdigest()}"

@@ -1,6 +1,6 @@
 """The landing task over N rigs as arrays: one code path for the single env (N = 1) and the vector env.
 
-:class:`LandingCore` takes the task's settings (:class:`~microg_env.envs.settings.TaskSettings`,
+:class:`LandingCore` takes the task's settings (:class:`~microg_env.task.TaskSettings`,
 checked there), builds the rig, draws each rig's episode
 (schedule, domain randomisation, start height, balancer drift) from that rig's own generator, and
 steps N rigs together: the episode's model field values (test weights placed, pad law, balancer
@@ -26,7 +26,6 @@ from microg_env.controllers.base import tell_plants
 from microg_env.controllers.pid import PID
 from microg_env.controllers.registry import make_controller
 from microg_env.envs import period
-from microg_env.envs.settings import TaskSettings
 from microg_env.imperfections import apply_imperfections
 from microg_env.interface import (
     DESCENT_LIMIT_M_S,
@@ -50,6 +49,7 @@ from microg_env.sim.model import (
 )
 from microg_env.sim.physics import BatchPhysics, ModelPhysics
 from microg_env.sim.sensors import NoiseDraws, SensorModel
+from microg_env.task import TaskSettings
 from microg_env.validate import FieldError
 
 #: Margin before a stroke end (or the pad's full depth) at which the episode terminates, m.

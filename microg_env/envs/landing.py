@@ -13,7 +13,6 @@ from gymnasium.error import ResetNeeded
 from microg_env import validate
 from microg_env.envs.core import STATE_KEYS, TASK_ATTRIBUTES, TERMINATION_REASONS, LandingCore, check_actions
 from microg_env.envs.period import x_reward
-from microg_env.envs.settings import TaskSettings
 from microg_env.interface import (
     OBSERVATION_INDEX,
     OBSERVATION_SCALES,
@@ -22,6 +21,7 @@ from microg_env.interface import (
 )
 from microg_env.params import RigParams
 from microg_env.scenarios import Scenario
+from microg_env.task import TaskSettings
 
 __all__ = ["OBSERVATION_INDEX", "OBSERVATION_SCALES", "MicroGravityLandingEnv", "x_reward"]
 
@@ -112,7 +112,7 @@ class MicroGravityLandingEnv(gym.Env):
 
     ## Arguments
     ``gym.make("microg_env:MicroGravityLanding-v1", **kwargs)``: the keywords are the fields of
-    :class:`~microg_env.envs.settings.TaskSettings`, which owns their defaults (``TaskSettings()``
+    :class:`~microg_env.task.TaskSettings`, which owns their defaults (``TaskSettings()``
     shows them), plus rendering's:
 
     | argument | meaning |

@@ -22,9 +22,9 @@ from gymnasium.vector.utils import batch_space
 
 from microg_env import validate
 from microg_env.envs.core import INFO_KEYS, LandingCore, check_actions
-from microg_env.envs.settings import TaskSettings
 from microg_env.interface import action_space, observation_space
 from microg_env.scenarios import Scenario
+from microg_env.task import TaskSettings
 
 #: Most rigs one vector environment steps (a batch's memory grows with it).
 MAX_RIGS = 4096

@@ -29,7 +29,9 @@ Monte Carlo draws (``samples:``) and seeds, expanded to the campaign's runs.
 A key names a RunSpec field (``controller``, ``control_period_us``, ...), a PID gain
 (``gains.ki_per_s2``), an imperfection (``imperfections.friction``) or a rig parameter by dotted
 path (``qzs.guide_friction_n``). Keys joined by commas vary together: each value is a list of
-one value per key. Runs = grid points x samples x seeds. A Morris design takes only uniform and
+one value per key. A parameter is named once in the file (``pad.stiffness_n_per_m`` and
+``overrides.pad.stiffness_n_per_m`` are one: fixed in ``base``, swept or drawn, not two of these).
+Runs = grid points x samples x seeds. A Morris design takes only uniform and
 loguniform ranges (a loguniform key is gridded in its logarithm) and is drawn by
 :func:`morris_design`, whose unit coordinates the sensitivity page reads back
 (:meth:`Campaign.morris_design`).
@@ -40,8 +42,8 @@ from __future__ import annotations
 import itertools
 import math
 import re
-from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -49,8 +51,7 @@ import numpy as np
 
 from microg_env import validate
 from microg_env.files import read_yaml
-from microg_env.params import parameter_paths
-from microg_env.rollout.spec import RunSpec
+from microg_env.rollout.spec import NESTED_FIELDS, RunSpec, spec_entry
 from microg_env.validate import shown
 
 #: The distributions ``samples:`` draws from, with their arguments.
@@ -89,6 +90,8 @@ class Campaign:
     seeds: tuple[int, ...]
     report: str | None
     batch_size: int
+    #: The file it was read from, as given (None: built from a mapping).
+    source: str | None = field(default=None, compare=False)
 
     @classmethod
     def load(cls, path: str | Path) -> Campaign:
@@ -96,12 +99,12 @@ class Campaign:
         path = Path(path)
         data = read_yaml(path, "campaign file")
         try:
-            return cls.from_dict(data)
+            return cls.from_dict(data, str(path))
         except ValueError as error:
             raise ValueError(f"campaign file {shown(str(path))}: {error}") from None
 
     @classmethod
-    def from_dict(cls, data: object) -> Campaign:
+    def from_dict(cls, data: object, source: str | None = None) -> Campaign:
         if not isinstance(data, Mapping):
             raise ValueError(f"must be a mapping with keys {', '.join(_TOP_KEYS)}, got {shown(data)}")
         unknown = sorted(set(data) - set(_TOP_KEYS))
@@ -134,6 +137,7 @@ class Campaign:
         samples = data.get("samples")
         if samples is not None:
             _check_samples(samples)
+        _check_named_once(base, sweep, samples["draw"] if samples is not None else {})
         report = data.get("report")
         batch_size = validate.integer("batch_size", data.get("batch_size", DEFAULT_BATCH_SIZE), 1, 256)
         campaign = cls(
@@ -145,6 +149,7 @@ class Campaign:
             _seeds(data.get("seeds", [0])),
             report,
             batch_size,
+            source,
         )
         if report is not None:
             from microg_env.experiments.studies import STUDIES
@@ -153,6 +158,9 @@ class Campaign:
             missing = [c for c in STUDIES[report].COLUMNS if c not in campaign.columns]
             if missing:
                 raise ValueError(f"report {shown(report)} needs {', '.join(missing)} swept or sampled")
+            check = getattr(STUDIES[report], "check", None)
+            if check is not None:
+                check(campaign)
         campaign.runs()  # every run's spec is checked now, before anything starts
         return campaign
 
@@ -175,13 +183,8 @@ class Campaign:
         repeats included, where :meth:`runs` runs a repeated point once)."""
         return _draws(self.samples)
 
-    def runs(self) -> list[Run]:
-        """Every run: grid points x samples x seeds, in that nesting order (a point a Morris design
-        repeats, once)."""
-        draws = sample_count(self.samples) if self.samples else 1
-        total = math.prod(len(v) for v in self.sweep.values()) * draws * len(self.seeds)
-        if total > MAX_RUNS:
-            raise ValueError(f"{total} runs, more than {MAX_RUNS}")
+    def _grid_points(self) -> list[dict[str, Any]]:
+        """The sweep's points in order, each a mapping of swept key to value (joined keys apart)."""
         points = []
         for values in itertools.product(*self.sweep.values()):
             point = {}
@@ -189,21 +192,44 @@ class Campaign:
                 keys = _keys(key)
                 point |= dict(zip(keys, value, strict=True)) if len(keys) > 1 else {key: value}
             points.append(point)
+        return points
+
+    def _specs(self) -> Iterator[tuple[int, dict[str, Any], int, RunSpec]]:
+        """(grid point's index, the columns' values, seed, spec) of every grid point x sample x seed,
+        in that nesting order, a point a Morris design repeats each time."""
+        draws = sample_count(self.samples) if self.samples else 1
+        total = math.prod(len(v) for v in self.sweep.values()) * draws * len(self.seeds)
+        if total > MAX_RUNS:
+            raise ValueError(f"{total} runs, more than {MAX_RUNS}")
         draws = _draws(self.samples) if self.samples else [{}]
-        out, seen = [], {}
-        for point in points:
+        for where, point in enumerate(self._grid_points()):
             for draw in draws:
                 values = point | draw
                 fields_ = _spec_fields(self.base, values)
                 for seed in self.seeds:
-                    spec = RunSpec.from_dict(fields_ | {"seed": seed})
-                    if spec.hash in seen and self._morris:  # trajectories may share a point: run it once
-                        continue
-                    if spec.hash in seen:
-                        raise ValueError(f"runs {seen[spec.hash]} and {values} are the same run (seed {seed})")
-                    seen[spec.hash] = values
-                    out.append(Run(spec, values))
+                    yield where, values, seed, RunSpec.from_dict(fields_ | {"seed": seed})
+
+    def runs(self) -> list[Run]:
+        """Every run: grid points x samples x seeds, in that nesting order (a point a Morris design
+        repeats, once)."""
+        out, seen = [], {}
+        for where, values, seed, spec in self._specs():
+            if spec.hash in seen:
+                if self._morris and seen[spec.hash][0] == (where, seed):  # trajectories share a point: once
+                    continue
+                raise ValueError(f"runs {seen[spec.hash][1]} and {values} are the same run (seed {seed})")
+            seen[spec.hash] = ((where, seed), values)
+            out.append(Run(spec, values))
         return out
+
+    def sample_runs(self) -> list[tuple[dict[str, Any], int, list[RunSpec]]]:
+        """For each grid point and seed: (the point, the seed, the spec of each of
+        :meth:`sample_points` in order, a point a Morris design repeats each time), what a page
+        matches its stored rows to by spec hash."""
+        points, specs = self._grid_points(), {}
+        for where, _, seed, spec in self._specs():
+            specs.setdefault((where, seed), []).append(spec)
+        return [(points[where], seed, of) for (where, seed), of in specs.items()]
 
 
 def sample_count(samples: Mapping[str, Any]) -> int:
@@ -224,26 +250,38 @@ def _keys(key: str) -> list[str]:
     return [k.strip() for k in key.split(",")]
 
 
+def _check_named_once(base: Mapping[str, Any], sweep: Mapping[str, Any], draw: Mapping[str, Any]) -> None:
+    """ValueError naming both spellings if two keys of ``base``, ``sweep`` (joined keys each) and
+    ``samples.draw`` land on one RunSpec entry (:func:`spec_entry`): the runs would take one key's
+    value and the table record the other's."""
+    named = [
+        (f"{key}.{name}", "base", (key, name))
+        for key, value in base.items()
+        if key in NESTED_FIELDS and isinstance(value, Mapping)
+        for name in value
+    ]
+    named += [(key, "base", (key,)) for key in base if key not in NESTED_FIELDS]
+    named += [(key, "sweep", spec_entry(key)) for entry in sweep for key in _keys(entry)]
+    named += [(key, "samples.draw", spec_entry(key)) for key in draw]
+    seen: dict[tuple[str, ...], str] = {}
+    for key, where, entry in named:
+        spelled = f"{shown(key)} ({where})"
+        if entry in seen:
+            raise ValueError(f"{seen[entry]} and {spelled} set one parameter, {'.'.join(entry)}: name it once")
+        seen[entry] = spelled
+
+
 def _spec_fields(base: Mapping[str, Any], values: Mapping[str, Any]) -> dict[str, Any]:
-    """RunSpec fields: ``base`` with each campaign key's value put where it belongs."""
-    names = {f.name for f in fields(RunSpec)}
+    """RunSpec fields: ``base`` with each campaign key's value put where it belongs (:func:`spec_entry`)."""
     out = {key: (dict(value) if isinstance(value, Mapping) else value) for key, value in base.items()}
-    for key in ("overrides", "gains", "imperfections"):
+    for key in NESTED_FIELDS:
         out.setdefault(key, {})
-    known = parameter_paths()
     for key, value in values.items():
-        part, _, rest = key.partition(".")
-        if key in names and key not in ("overrides", "gains", "imperfections", "seed"):
+        entry = spec_entry(key)
+        if len(entry) == 1:
             out[key] = value
-        elif part in ("gains", "imperfections", "overrides") and rest:
-            out[part][rest] = value
-        elif key in known:
-            out["overrides"][key] = value
         else:
-            raise ValueError(
-                f"{shown(key)} is neither a run spec field, gains.NAME, imperfections.NAME nor a rig parameter "
-                "(dotted path, e.g. qzs.guide_friction_n)"
-            )
+            out[entry[0]][entry[1]] = value
     try:
         RunSpec.from_dict(out)
     except (ValueError, TypeError, AttributeError) as error:
@@ -311,6 +349,8 @@ def _check_samples(samples: object) -> None:
         if not (isinstance(args, list) and len(args) == 2):
             raise ValueError(f"samples.draw.{key}.{kind} must be {DISTRIBUTIONS[kind]}, got {shown(args)}")
         a, b = (validate.finite(f"samples.draw.{key}.{kind}", v) for v in args)
+        if kind == "uniform" and not math.isfinite(b - a):
+            raise ValueError(f"samples.draw.{key}.uniform: {shown(args)} is wider than a float holds (high - low)")
         if (
             (kind in ("uniform", "loguniform") and not a < b)
             or (kind == "loguniform" and a <= 0)
@@ -331,10 +371,21 @@ def morris_design(samples: Mapping[str, Any]) -> np.ndarray:
     )
 
 
+#: Significant digits a log-uniform value keeps (:func:`_exp`).
+LOG_DRAW_DIGITS = 12
+
+
+def _exp(logarithms: np.ndarray) -> np.ndarray:
+    """Log-uniform values from their logarithms, kept to :data:`LOG_DRAW_DIGITS` significant digits:
+    NumPy's vectorised ``exp`` differs in the last bit between CPUs (AVX-512 or not), and a drawn
+    value enters a run's identity (its spec hash), so unrounded a design would differ by machine."""
+    return np.array([float(f"{math.exp(v):.{LOG_DRAW_DIGITS}g}") for v in np.asarray(logarithms, dtype=float)])
+
+
 def _from_unit(unit: np.ndarray, distribution: Mapping[str, list]) -> np.ndarray:
     ((kind, (low, high)),) = distribution.items()
     if kind == "loguniform":
-        return np.exp(math.log(low) + unit * (math.log(high) - math.log(low)))
+        return _exp(math.log(low) + unit * (math.log(high) - math.log(low)))
     return low + unit * (high - low)
 
 
@@ -353,7 +404,7 @@ def _draws(samples: Mapping[str, Any]) -> list[dict[str, Any]]:
         if kind == "uniform":
             values = rng.uniform(args[0], args[1], count)
         elif kind == "loguniform":
-            values = np.exp(rng.uniform(math.log(args[0]), math.log(args[1]), count))
+            values = _exp(rng.uniform(math.log(args[0]), math.log(args[1]), count))
         elif kind == "normal":
             values = rng.normal(args[0], args[1], count)
         else:

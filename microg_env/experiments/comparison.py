@@ -24,7 +24,7 @@ from microg_env import validate
 from microg_env.analysis.metrics import COMPARED_WINDOW, RunMetrics, contacts
 from microg_env.analysis.paired import Paired, paired
 from microg_env.analysis.summary import Summary, finite_mean, summarise
-from microg_env.controllers.registry import CONTROLLER_NAMES, check_controller_name
+from microg_env.controllers.registry import CONTROLLER_NAMES, check_controller_name, controller_digest
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.rollout.runner import run_many
 from microg_env.rollout.spec import RunSpec
@@ -261,13 +261,16 @@ def compare(
         if name not in known:
             raise ValueError(f"scenario must be one of {', '.join(known)}, got {name!r}")
     for controller in controllers:
-        check_controller_name(controller)
+        check_controller_name(controller, sensor_set)
     if not controllers or not names:
         raise ValueError("give at least one controller and one scenario")
-    for kind, given in (("controller", tuple(controllers)), ("scenario", names)):
-        repeated = next((item for i, item in enumerate(given) if item in given[:i]), None)
+    identities = [controller_digest(c) or c for c in controllers]  # a policy is its contents, however named
+    for kind, given, same in (("controller", tuple(controllers), identities), ("scenario", names, names)):
+        repeated = next((i for i in range(len(given)) if same[i] in same[:i]), None)
         if repeated is not None:  # its runs would count twice in every mean and test
-            raise ValueError(f"{kind} {repeated!r} is given twice")
+            first = given[same.index(same[repeated])]
+            also = "" if first == given[repeated] else f" (as {first!r} too)"
+            raise ValueError(f"{kind} {given[repeated]!r} is given twice{also}")
     if reference is not None and reference not in controllers:
         raise ValueError(
             f"reference must be one of the compared controllers {', '.join(controllers)}, got {reference!r}"

@@ -5,7 +5,8 @@ specs that share a rig (at most the campaign's ``batch_size``), each a one-CPU R
 its specs as rigs of one batch (:func:`~microg_env.experiments.tuning.run_with_retuning`). The driver stores
 each task's rows as the task finishes, so an interrupted campaign keeps every finished task and
 loses none of its rows; re-running it skips the stored runs (a failed run is tried again). A run
-that raises, or a task whose worker dies, is stored with its error.
+that raises, or a task whose worker dies, is stored with its error. Ctrl-C and SIGTERM stop a
+campaign cleanly; a local instance's processes end with the driver, however it ends (:func:`_reaper`).
 """
 
 from __future__ import annotations
@@ -17,8 +18,11 @@ import os
 import shutil
 import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
+import uuid
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -42,6 +46,41 @@ HTTP2_SETTINGS = 4
 WAIT_S = 0.2
 #: The campaign file as it was run, in its folder.
 CAMPAIGN_COPY = "campaign.json"
+#: The signals that stop a campaign where it can stop cleanly: Ctrl-C and SIGTERM (``kill``).
+INTERRUPTS = (signal.SIGINT, signal.SIGTERM)
+#: Seconds between the looks for the processes a local Ray instance starts.
+WATCH_S = 0.5
+#: The variable in the environment of the processes of a local Ray instance that a campaign starts.
+OWNER = "MICROG_CAMPAIGN_RAY"
+#: The program of a reaper (:func:`_reaper`): it holds a pidfd of each process whose pid comes on a
+#: line of its standard input; when that closes, it kills them and the processes (the driver
+#: aside) whose environment holds its argument, ``OWNER=...``. Signals sent to the whole process
+#: group (Ctrl-C in a terminal) leave it be.
+REAPER = """\
+import os, signal, sys
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
+driver, held = str(os.getppid()), {}
+for line in sys.stdin:
+    for pid in set(line.split()) - held.keys():
+        try:
+            held[pid] = os.pidfd_open(int(pid))
+        except OSError:  # ended already
+            pass
+for fd in held.values():
+    try:
+        signal.pidfd_send_signal(fd, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+mark = sys.argv[1].encode()
+for pid in set(filter(str.isdigit, os.listdir("/proc"))) - {driver}:
+    try:
+        with open(f"/proc/{pid}/environ", "rb") as environ:
+            if mark in environ.read().split(b"\\0"):
+                os.kill(int(pid), signal.SIGKILL)
+    except OSError:
+        pass
+"""
 
 
 @dataclass(frozen=True)
@@ -103,10 +142,10 @@ def execute(
     on_progress: Callable[[int, int], None] | None = None,
 ) -> CampaignSummary:
     """Run ``campaign``'s missing runs on Ray and store them in ``folder``; ``on_progress(runs done,
-    runs to do)`` as tasks finish. A KeyboardInterrupt stops the tasks still out, keeps every
-    stored row, writes the table of what is stored and re-raises. One process at a time writes a
-    folder: a second is refused (ValueError) while the first runs. A start that fails before Ray
-    answers leaves no new folder behind."""
+    runs to do)`` as tasks finish. Ctrl-C or SIGTERM (a KeyboardInterrupt) stops the tasks still
+    out, keeps every stored row, writes the table of what is stored and raises KeyboardInterrupt.
+    One process at a time writes a folder: a second is refused (ValueError) while the first runs.
+    A start that fails before Ray answers leaves no new folder behind."""
     folder = Path(folder)
     check_folder(campaign, folder)
     new, locked = not folder.exists(), False
@@ -130,28 +169,27 @@ def _execute(campaign, folder, address, num_cpus, on_progress) -> CampaignSummar
     stored = store.statuses()
     todo = [run for run in runs if stored.get(run.spec.hash) != OK]
     skipped = len(runs) - len(todo)
-    session = None  # the folder of the local Ray instance this campaign starts (its logs), removed after
-    if todo and not ray.is_initialized():  # before anything is written
-        context = ray.init(  # "local": an instance of its own, never a cluster found on the machine
-            address=address or "local",
-            num_cpus=None if address else num_cpus,
-            include_dashboard=False,
-            log_to_driver=False,
-            logging_level="ERROR",
-            configure_logging=True,
-        )
-        if address is None:
-            session = getattr(context, "address_info", {}).get("session_dir")
-    write_text(folder / CAMPAIGN_COPY, json.dumps(asdict(campaign), indent=2) + "\n")
     done = failed = 0
-    if todo:
-        remote = ray.remote(num_cpus=1, max_retries=0)(_run_task)
-        pending = {}
+    local = bool(todo) and address is None and not ray.is_initialized()
+    # From Ray's start to the end of its shutdown, Ctrl-C and SIGTERM set a flag: the campaign
+    # stops at its next look, and the shutdown and the table are never cut short.
+    with _interrupt_flag() as interrupted, _reaper(local) as starting:
+        session = None  # the folder of the local Ray instance this campaign starts (its logs), removed after
+        if todo and not ray.is_initialized():  # before anything is written
+            with starting():
+                context = _start_ray(address, num_cpus)
+            if address is None:
+                session = getattr(context, "address_info", {}).get("session_dir")
         try:
-            for task in tasks_of(todo, campaign.batch_size):
-                ref = remote.remote([run.spec.as_dict() for run in task], [run.columns for run in task])
-                pending[ref] = task
-            with _interrupt_flag() as interrupted:
+            if interrupted.is_set():  # during Ray's start: nothing is written
+                raise KeyboardInterrupt
+            write_text(folder / CAMPAIGN_COPY, json.dumps(asdict(campaign), indent=2) + "\n")
+            if todo:
+                remote = ray.remote(num_cpus=1, max_retries=0)(_run_task)
+                pending = {}
+                for task in tasks_of(todo, campaign.batch_size):
+                    ref = remote.remote([run.spec.as_dict() for run in task], [run.columns for run in task])
+                    pending[ref] = task
                 while pending:
                     ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_S)
                     for ref in ready:
@@ -169,15 +207,14 @@ def _execute(campaign, folder, address, num_cpus, on_progress) -> CampaignSummar
                     if interrupted.is_set():
                         raise KeyboardInterrupt
         finally:
-            # Ends the driver's job: Ray kills the job's workers, so the tasks still out stop (a
-            # cluster given by --address runs on). No ray.cancel: cancelling a task whose reply is
-            # already on its way trips a check in Ray's task manager and kills the driver.
-            ray.shutdown()
+            if todo:
+                # Ends the driver's job: Ray kills the job's workers, so the tasks still out stop (a
+                # cluster given by --address runs on). No ray.cancel: cancelling a task whose reply is
+                # already on its way trips a check in Ray's task manager and kills the driver.
+                ray.shutdown()
             _finish(store, runs, folder)
             if session is not None:
                 shutil.rmtree(session, ignore_errors=True)
-    else:
-        _finish(store, runs, folder)
     report = None
     if campaign.report is not None:
         from microg_env.experiments.studies import write_study
@@ -196,31 +233,135 @@ def _execute(campaign, folder, address, num_cpus, on_progress) -> CampaignSummar
     )
 
 
+def _start_ray(address: str | None, num_cpus: int | None) -> Any:
+    """``ray.init`` (no ``address``: an instance of its own, never a cluster found on the machine)
+    without the SIGTERM handler it puts in, which exits wherever the driver is (inside Ray's wait,
+    with a dump of Ray's stack): the caller's handler stays, and a SIGTERM during the start raises
+    KeyboardInterrupt. Ray's context."""
+    import ray
+
+    handler = signal.getsignal(signal.SIGTERM)
+    try:
+        return ray.init(
+            address=address or "local",
+            num_cpus=None if address else num_cpus,
+            include_dashboard=False,
+            log_to_driver=False,
+            logging_level="ERROR",
+            configure_logging=True,
+        )
+    except SystemExit as error:  # Ray's handler: SIGTERM came during the start
+        if error.code != signal.SIGTERM:
+            raise
+        ray.shutdown()
+        raise KeyboardInterrupt from None
+    finally:
+        if handler is not None and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, handler)
+
+
+@contextlib.contextmanager
+def _reaper(local: bool) -> Iterator[Callable[[], contextlib.AbstractContextManager]]:
+    """For a ``local`` Ray instance: a process that kills the instance's processes when the block
+    ends, or when this process ends, however it ends (SIGKILL included). Ray ties the GCS server,
+    raylet and workers to the driver, but its dashboard and runtime-env agents outlived a killed
+    driver by a minute (reporting the raylet's death to the dead GCS server), and workers still
+    starting lingered too. Yields ``starting``, the context to start Ray in. A thread tells the
+    reaper of the instance's processes as they start: each new descendant of this process while Ray
+    starts, then each new child of those; the reaper holds pidfds, which a reused pid cannot fool.
+    Those started since the thread's last look carry :data:`OWNER` in their environment, which the
+    reaper looks for too. Linux only (elsewhere, and for a cluster, nothing is watched)."""
+    if not local or not hasattr(os, "pidfd_open") or not os.path.isdir("/proc"):
+        yield contextlib.nullcontext
+        return
+    mark = uuid.uuid4().hex
+    reaper = subprocess.Popen(
+        [sys.executable, "-c", REAPER, f"{OWNER}={mark}"], stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True
+    )
+    others = set(_parents())  # the processes there before Ray's
+    started, ended = threading.Event(), threading.Event()
+
+    def watch() -> None:
+        ours: set[int] = set()
+        while True:
+            parents = _parents()
+            while True:  # the children of ours, and of theirs (and of this process, while Ray starts)
+                roots = ours if started.is_set() else ours | {os.getpid()}
+                new = {pid for pid, parent in parents.items() if parent in roots} - ours - others
+                if not new:
+                    break
+                ours |= new
+                reaper.stdin.write(" ".join(map(str, new)) + "\n")
+            reaper.stdin.flush()
+            if ended.wait(WATCH_S):
+                return
+
+    @contextlib.contextmanager
+    def starting() -> Iterator[None]:
+        os.environ[OWNER] = mark
+        try:
+            yield
+        finally:
+            del os.environ[OWNER]
+            started.set()
+
+    watcher = threading.Thread(target=watch, name="ray-processes", daemon=True)
+    watcher.start()
+    try:
+        yield starting
+    finally:
+        ended.set()
+        watcher.join()
+        reaper.stdin.close()
+        reaper.wait()
+
+
+def _parents() -> dict[int, int]:
+    """Every process's parent, from /proc: pid -> parent's pid."""
+    parents = {}
+    for name in filter(str.isdigit, os.listdir("/proc")):
+        with contextlib.suppress(OSError, IndexError), open(f"/proc/{name}/stat", "rb") as stat:  # or ended
+            parents[int(name)] = int(stat.read().rsplit(b")", 1)[1].split()[1])
+    return parents
+
+
 @contextlib.contextmanager
 def _interrupt_flag() -> Iterator[threading.Event]:
-    """Within: SIGINT (Ctrl-C) sets the yielded event instead of raising KeyboardInterrupt, and the
-    caller raises it where it chooses. Ray's ``wait`` checks for signals itself and can drop the
-    KeyboardInterrupt when a task finishes at the same moment (the campaign then ran on to the end);
-    a flag cannot be dropped. Off the main thread, where Python allows no handler, it stays unset."""
+    """Within: SIGINT (Ctrl-C) and SIGTERM set the yielded event instead of raising
+    KeyboardInterrupt, and the caller raises it where it chooses; on leaving, the handlers are
+    restored, and KeyboardInterrupt raised if the event is set. Ray's ``wait`` checks for signals
+    itself and can drop the KeyboardInterrupt when a task finishes at the same moment (the campaign
+    then ran on to the end); a flag cannot be dropped. Off the main thread, where Python allows no
+    handler, it stays unset."""
     interrupted = threading.Event()
     if threading.current_thread() is not threading.main_thread():
         yield interrupted
         return
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.set())
+    previous = {number: signal.signal(number, lambda signum, frame: interrupted.set()) for number in INTERRUPTS}
     try:
         yield interrupted
     finally:
-        signal.signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)
+        for number, handler in previous.items():
+            signal.signal(number, signal.SIG_DFL if handler is None else handler)
+    if interrupted.is_set():
+        raise KeyboardInterrupt
 
 
 def check_folder(campaign: Campaign, folder: Path) -> None:
-    """ValueError if ``folder`` holds another campaign's results (its name differs)."""
+    """ValueError if ``folder`` holds another campaign's results (its name differs), or a record of
+    its campaign that cannot be read (naming the file and the fault)."""
     record = folder / CAMPAIGN_COPY
     if record.is_file():
         try:
-            name = json.loads(record.read_text(encoding="utf-8")).get("name")
-        except (ValueError, OSError, AttributeError):
-            name = None
+            recorded = json.loads(record.read_text(encoding="utf-8"))
+            if not isinstance(recorded, dict) or not isinstance(recorded.get("name"), str):
+                raise ValueError("it names no campaign")
+        except (ValueError, OSError) as error:
+            raise ValueError(
+                f"--out {str(folder)!r}: its campaign record {str(record)!r} cannot be read ({error}); "
+                "restore it, or give another folder"
+            ) from None
+        name = recorded["name"]
         if name != campaign.name:
             raise ValueError(
                 f"--out {str(folder)!r} holds the results of campaign {name!r}, not {campaign.name!r}; "

@@ -18,12 +18,28 @@ from microg_env.learning.hyperparams import CONTRIB_ALGORITHMS
 MODEL_FILE, NORMALIZATION_FILE = "model.zip", "vecnormalize.pkl"
 
 
-def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], str, bool]:
+#: torch's activations an exported network may hold, by their names in
+#: :data:`~microg_env.controllers.policy.ACTIVATIONS`.
+TORCH_ACTIVATIONS = {
+    "Tanh": "tanh",
+    "ReLU": "relu",
+    "ELU": "elu",
+    "LeakyReLU": "leaky_relu",
+    "GELU": "gelu",
+    "SiLU": "silu",
+}
+
+
+def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], str, bool, float]:
     """The deterministic actor of a PPO, SAC, TQC or CrossQ ``model``: its layers' weights and
     biases (float64, the first on the whole observation the model was trained on), the activation
-    between them and whether its output is squashed (SAC; TQC's and CrossQ's actors are built as
-    SAC's) rather than clipped (PPO). CrossQ's batch renormalisation layers are folded into the
-    layers they feed (:func:`fold_batch_renorm`)."""
+    between them, whether its output is squashed by a tanh (SAC; TQC's and CrossQ's actors are built
+    as SAC's; PPO's with ``squash_output``) rather than clipped (PPO), and the clip of the output before
+    the tanh (``clip_mean`` with gSDE; 0: none). CrossQ's batch renormalisation layers are folded into
+    the layers they feed (:func:`fold_batch_renorm`). What the export cannot compute as the model does
+    is refused, named."""
+    import torch.nn as nn
+    from gymnasium import spaces
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.torch_layers import FlattenExtractor
 
@@ -32,21 +48,37 @@ def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, 
 
     if isinstance(model, PPO):
         policy = model.policy
-        extractor, hidden = policy.pi_features_extractor, policy.mlp_extractor.policy_net
-        head, squash = policy.action_net, False
+        extractor, hidden, head = policy.pi_features_extractor, policy.mlp_extractor.policy_net, policy.action_net
     elif isinstance(model, squashed):
-        actor = model.actor
-        extractor, hidden, head, squash = actor.features_extractor, actor.latent_pi, actor.mu, True
+        policy = model.actor
+        extractor, hidden, head = policy.features_extractor, policy.latent_pi, policy.mu
     else:
         raise ValueError(f"can export PPO, SAC, TQC and CrossQ policies, got {type(model).__name__}")
     if not isinstance(extractor, FlattenExtractor):
         raise ValueError(f"can export MLP policies only, got a {type(extractor).__name__}")
-    layers, activations = fold_batch_renorm([*hidden, head])
-    activation = {frozenset({"Tanh"}): "tanh", frozenset({"ReLU"}): "relu"}.get(frozenset(activations))
-    if activation is None:
-        raise ValueError(f"can export tanh or ReLU networks, got {sorted(activations)}")
+    space = model.action_space
+    if not (isinstance(space, spaces.Box) and space.shape == (1,) and space.low[0] == -1.0 and space.high[0] == 1.0):
+        raise ValueError(f"can export policies of one action in [-1, 1], got the action space {space}")
+    modules = [*hidden, *(head if isinstance(head, nn.Sequential) else [head])]
+    mean_clip = 0.0
+    if type(modules[-1]) is nn.Hardtanh:  # clip_mean's (gSDE), before the tanh
+        clip = modules.pop()
+        if clip.min_val != -clip.max_val:
+            raise ValueError(f"can export a symmetric clip of the output, got {clip}")
+        mean_clip = float(clip.max_val)
+    for module in modules:  # torch's default parameters, as the NumPy activations compute them
+        if type(module).__name__ in TORCH_ACTIVATIONS and repr(module) != repr(type(module)()):
+            raise ValueError(f"can export activations with torch's default parameters, got {module}")
+    layers, others = fold_batch_renorm(modules)
+    activations = {TORCH_ACTIVATIONS.get(name, name) for name in others}
+    if not activations <= set(TORCH_ACTIVATIONS.values()) or len(activations) > 1:
+        raise ValueError(
+            f"can export networks of one activation of {', '.join(TORCH_ACTIVATIONS)} between linear layers, "
+            f"got {', '.join(sorted(others))}"
+        )
+    activation = activations.pop() if activations else "tanh"  # no hidden layer: none is applied
     weights, biases = zip(*layers, strict=True)
-    return weights, biases, activation, squash
+    return weights, biases, activation, bool(policy.squash_output), mean_clip
 
 
 def fold_batch_renorm(modules: list[Any]) -> tuple[list[tuple[np.ndarray, np.ndarray]], set[str]]:
@@ -90,7 +122,7 @@ def _array(tensor: Any) -> np.ndarray:
 def export_policy(model: Any, vecnormalize: Any | None) -> MLPPolicy:
     """The deterministic actor of a PPO, SAC, TQC or CrossQ ``model`` (:func:`actor_layers`) and the observation
     statistics of ``vecnormalize`` (None: no normalisation) as an :class:`MLPPolicy`."""
-    weights, biases, activation, squash = actor_layers(model)
+    weights, biases, activation, squash, mean_clip = actor_layers(model)
     size = model.observation_space.shape[0]
     if vecnormalize is not None and vecnormalize.norm_obs:
         mean, var = vecnormalize.obs_rms.mean, vecnormalize.obs_rms.var
@@ -106,6 +138,7 @@ def export_policy(model: Any, vecnormalize: Any | None) -> MLPPolicy:
         np.asarray(var, dtype=np.float64),
         clip_obs,
         epsilon,
+        mean_clip,
     )
 
 

@@ -21,6 +21,7 @@ from typing import Any
 from gymnasium.envs.registration import registry
 
 from microg_env import validate
+from microg_env.controllers.policy import MIN_CLIP_OBS
 from microg_env.files import read_yaml
 from microg_env.validate import shown
 
@@ -30,10 +31,24 @@ ALGORITHMS = ("ppo", "sac", "tqc", "crossq")
 CONTRIB_ALGORITHMS = {"tqc": "TQC", "crossq": "CrossQ"}
 #: Algorithm arguments microg train sets itself (from its options), refused in a file.
 SET_BY_TRAIN = ("device", "seed", "verbose", "tensorboard_log", "env", "policy")
-#: Algorithm arguments that count something, each a positive integer.
-COUNT_KEYS = ("n_steps", "batch_size", "n_epochs", "buffer_size", "policy_delay")
-#: TQC's quantiles per critic network unless policy_kwargs give n_quantiles (sb3-contrib's default).
-TQC_QUANTILES = 25
+#: Algorithm arguments that count something, each a positive integer (target_update_interval 0
+#: divided by zero at the first update; stats_window_size 0 averaged no episodes).
+COUNT_KEYS = (
+    "n_steps",
+    "batch_size",
+    "n_epochs",
+    "buffer_size",
+    "policy_delay",
+    "target_update_interval",
+    "stats_window_size",
+)
+#: Algorithm arguments that are integers, by their least value: COUNT_KEYS from 1, learning_starts
+#: from 0, gradient_steps and sde_sample_freq from -1 (one update per step collected; a sample only
+#: at a rollout's start). gradient_steps 0 is refused too: a run that never updates its policy.
+INTEGER_KEYS = dict.fromkeys(COUNT_KEYS, 1) | {"learning_starts": 0, "gradient_steps": -1, "sde_sample_freq": -1}
+#: TQC's quantiles per critic network unless policy_kwargs give n_quantiles, and those of each it
+#: drops unless top_quantiles_to_drop_per_net says (sb3-contrib's defaults).
+TQC_QUANTILES, TQC_DROPPED = 25, 2
 #: Most environments a run steps (the CLI's --n-envs cap: rigs of one batch).
 MAX_ENVS = 256
 #: The zoo's keys that are not the algorithm's keyword arguments.
@@ -51,11 +66,18 @@ UNSUPPORTED_KEYS = (
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 #: Algorithm arguments that are numbers, checked before a run starts (the algorithms check few of
 #: them, some only when training reaches them): in [0, 1], positive, at least 0; OFF_KEYS may be
-#: null (off), SCHEDULE_KEYS a schedule.
+#: null (off), SCHEDULE_KEYS a schedule, an off-policy ent_coef ``auto`` or ``auto_<initial value>``.
 UNIT_KEYS = ("gamma", "gae_lambda", "tau")
 POSITIVE_KEYS = ("learning_rate", "clip_range", "clip_range_vf", "target_kl", "max_grad_norm")
-NON_NEGATIVE_KEYS = ("vf_coef",)
+NON_NEGATIVE_KEYS = ("vf_coef", "ent_coef")
 OFF_KEYS = ("clip_range_vf", "target_kl")
+#: The same for the numbers of policy_kwargs (TQC and CrossQ check none of them: 0 quantiles
+#: trained a critic of nothing, a negative momentum made the actor's output NaN) and of normalize
+#: (VecNormalize's: a clip_obs of 0 makes every observation 0).
+POLICY_COUNT_KEYS = ("n_critics", "n_quantiles")
+POLICY_UNIT_KEYS = ("batch_norm_momentum",)
+POLICY_POSITIVE_KEYS = ("batch_norm_eps",)
+NORMALIZE_POSITIVE_KEYS = ("clip_obs", "clip_reward", "epsilon")
 #: The policies an entry may name (the observation is a vector).
 POLICIES = ("MlpPolicy",)
 #: ``nn.<name>`` in a policy_kwargs string.
@@ -112,24 +134,14 @@ def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
     for key in SET_BY_TRAIN:
         if key in algo_kwargs:
             raise ValueError(f"{where}: {shown(key)} is set by microg train (use its options), not the file")
-    for key in COUNT_KEYS:
-        if key in algo_kwargs:
-            algo_kwargs[key] = _positive_int(algo_kwargs[key], f"{where}.{key}")
-    for key in (*UNIT_KEYS, *POSITIVE_KEYS, *NON_NEGATIVE_KEYS):
-        value = algo_kwargs.get(key)
-        if (
-            key not in algo_kwargs
-            or (value is None and key in OFF_KEYS)
-            or (isinstance(value, str) and key in SCHEDULE_KEYS)
-        ):
-            continue  # absent, off, or a schedule (checked below)
-        name = f"{where}.{key}"
-        if key in UNIT_KEYS:
-            validate.between(name, value, 0.0, 1.0)
-        elif key in POSITIVE_KEYS:
-            validate.positive(name, value)
-        else:
-            validate.at_least(name, value, 0.0)
+    texts = SCHEDULE_KEYS if algo == "ppo" else (*SCHEDULE_KEYS, "ent_coef")  # each checked below
+    _check_numbers(algo_kwargs, where, INTEGER_KEYS, UNIT_KEYS, POSITIVE_KEYS, NON_NEGATIVE_KEYS, texts)
+    if algo_kwargs.get("gradient_steps") == 0:
+        raise ValueError(f"{where}.gradient_steps must be -1 (one per step collected) or a positive integer, got 0")
+    if isinstance(algo_kwargs.get("ent_coef"), str):
+        _learned_coefficient(algo_kwargs["ent_coef"], f"{where}.ent_coef")
+    if algo_kwargs.get("target_entropy", "auto") != "auto":
+        validate.finite(f"{where}.target_entropy", algo_kwargs["target_entropy"])
     policy = entry.get("policy", POLICIES[0])
     if policy not in POLICIES:
         raise ValueError(f"{where}.policy must be one of {', '.join(POLICIES)}, got {shown(policy)}")
@@ -142,24 +154,35 @@ def load(algo: str, env_id: str, path: str | Path | None = None) -> Hyperparams:
                 f"{where}.env_kwargs: {key} is not a setting of the task (its episodes end with the schedule)"
             )
     if "policy_kwargs" in algo_kwargs:
-        algo_kwargs["policy_kwargs"] = _policy_kwargs(algo_kwargs["policy_kwargs"], where)
+        policy_kwargs = algo_kwargs["policy_kwargs"] = _policy_kwargs(algo_kwargs["policy_kwargs"], where)
+        counts = dict.fromkeys(POLICY_COUNT_KEYS, 1)
+        _check_numbers(policy_kwargs, f"{where}.policy_kwargs", counts, POLICY_UNIT_KEYS, POLICY_POSITIVE_KEYS)
+    quantiles = (algo_kwargs.get("policy_kwargs") or {}).get("n_quantiles", TQC_QUANTILES)
     if "top_quantiles_to_drop_per_net" in algo_kwargs:  # TQC's: the critic must keep a quantile
-        quantiles = (algo_kwargs.get("policy_kwargs") or {}).get("n_quantiles", TQC_QUANTILES)
         name = f"{where}.top_quantiles_to_drop_per_net"
         dropped = algo_kwargs["top_quantiles_to_drop_per_net"]
         algo_kwargs["top_quantiles_to_drop_per_net"] = validate.integer(name, dropped, 0, int(quantiles) - 1)
-    if "train_freq" in algo_kwargs and isinstance(algo_kwargs["train_freq"], list):
-        algo_kwargs["train_freq"] = tuple(algo_kwargs["train_freq"])
+    elif algo == "tqc" and quantiles <= TQC_DROPPED:
+        raise ValueError(
+            f"{where}.policy_kwargs.n_quantiles must be more than the {TQC_DROPPED} TQC drops "
+            f"(top_quantiles_to_drop_per_net's default), got {quantiles}"
+        )
+    if "train_freq" in algo_kwargs:
+        algo_kwargs["train_freq"] = _train_freq(algo_kwargs["train_freq"], f"{where}.train_freq")
     for key in SCHEDULE_KEYS:
         if isinstance(algo_kwargs.get(key), str):
             schedule(algo_kwargs[key], f"{where}.{key}")  # check it now
+    normalize = _normalize(entry.get("normalize", False), algo_kwargs.get("gamma"), where)
+    seen: set[int] = set()
+    for name, value in (("env_kwargs", env_kwargs), ("normalize", normalize), *algo_kwargs.items()):
+        _check_finite(value, f"{where}.{name}", seen)
     return Hyperparams(
         algo=algo,
         env_id=env_id,
         n_envs=_bounded_int(entry.get("n_envs", 1), f"{where}.n_envs", MAX_ENVS),
-        n_timesteps=_positive_int(entry.get("n_timesteps", 0), f"{where}.n_timesteps"),
+        n_timesteps=_integer(entry.get("n_timesteps", 0), f"{where}.n_timesteps"),
         policy=policy,
-        normalize=_normalize(entry.get("normalize", False), algo_kwargs.get("gamma"), where),
+        normalize=normalize,
         env_kwargs=dict(registry[env_id].kwargs) | env_kwargs if env_id in registry else dict(env_kwargs),
         algo_kwargs=algo_kwargs,
         source=str(path),
@@ -176,6 +199,64 @@ def schedule(text: str, where: str):
     if kind != "lin" or initial is None or not 0.0 < initial < math.inf:
         raise ValueError(f"{where}: schedule must be written lin_<value> with a positive value, got {shown(text)}")
     return lambda progress_remaining: progress_remaining * initial
+
+
+def _learned_coefficient(text: str, where: str) -> None:
+    """An off-policy ``ent_coef`` learned from 1 (``auto``) or from a positive value (``auto_<value>``)."""
+    kind, _, value = text.partition("_")
+    try:
+        initial = 1.0 if text == "auto" else float(value)
+    except ValueError:
+        initial = math.nan
+    if kind != "auto" or not 0.0 < initial < math.inf:
+        raise ValueError(f"{where} must be a number, auto or auto_<positive value>, got {shown(text)}")
+
+
+def _train_freq(value: Any, where: str) -> int | tuple[int, str]:
+    """An off-policy rollout: n steps, or [n, step] or [n, episode]."""
+    if not isinstance(value, list | tuple):
+        return _integer(value, where)
+    if len(value) != 2 or value[1] not in ("step", "episode"):
+        raise ValueError(f"{where} must be n, [n, step] or [n, episode], got {shown(value)}")
+    return _integer(value[0], f"{where}[0]"), value[1]
+
+
+def _check_numbers(
+    values: dict[str, Any],
+    where: str,
+    integers: dict[str, int],
+    units: tuple[str, ...],
+    positives: tuple[str, ...],
+    non_negatives: tuple[str, ...] = (),
+    texts: tuple[str, ...] = (),
+) -> None:
+    """The numbers of ``values`` in their ranges by key: integers (made ints) from their least value,
+    in [0, 1], positive, at least 0. Null where OFF_KEYS are off, and text where ``texts`` may be
+    written as text, are left to their own checks."""
+    for key, value in values.items():
+        name = f"{where}.{key}"
+        if (value is None and key in OFF_KEYS) or (isinstance(value, str) and key in texts):
+            continue
+        if key in integers:
+            values[key] = _integer(value, name, integers[key])
+        elif key in units:
+            validate.between(name, value, 0.0, 1.0)
+        elif key in positives:
+            validate.positive(name, value)
+        elif key in non_negatives:
+            validate.at_least(name, value, 0.0)
+
+
+def _check_finite(value: Any, where: str, seen: set[int]) -> None:
+    """Every number in ``value``, through its mappings and lists, finite; else a ValueError naming
+    its key. A shared part (a YAML alias) is walked once."""
+    if isinstance(value, float):
+        validate.finite(where, value)
+    elif isinstance(value, dict | list | tuple) and id(value) not in seen:
+        seen.add(id(value))
+        items = value.items() if isinstance(value, dict) else enumerate(value)
+        for key, item in items:
+            _check_finite(item, f"{where}.{key}" if isinstance(value, dict) else f"{where}[{key}]", seen)
 
 
 def algo_arguments(params: Hyperparams) -> dict[str, Any]:
@@ -195,17 +276,19 @@ def algo_arguments(params: Hyperparams) -> dict[str, Any]:
 
 
 def _bounded_int(value: Any, where: str, high: int) -> int:
-    value = _positive_int(value, where)
+    value = _integer(value, where)
     if value > high:
         raise ValueError(f"{where} must be at most {high}, got {value}")
     return value
 
 
-def _positive_int(value: Any, where: str) -> int:
+def _integer(value: Any, where: str, low: int = 1) -> int:
+    """An integer (also written 1e4) of at least ``low``."""
     if isinstance(value, float) and value.is_integer():
         value = int(value)
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"{where} must be a positive integer, got {shown(value)}")
+    if not isinstance(value, int) or isinstance(value, bool) or value < low:
+        kind = "a positive integer" if low == 1 else f"an integer of at least {low}"
+        raise ValueError(f"{where} must be {kind}, got {shown(value)}")
     return value
 
 
@@ -223,6 +306,10 @@ def _normalize(value: Any, gamma: Any, where: str) -> dict[str, Any] | None:
         raise ValueError(f"{where}.normalize must be true, false or VecNormalize's arguments, got {shown(value)}")
     if gamma is not None:
         kwargs["gamma"] = gamma
+    _check_numbers(kwargs, f"{where}.normalize", {}, ("gamma",), NORMALIZE_POSITIVE_KEYS)
+    if "clip_obs" in kwargs:  # as the exported policy must have it
+        why = "a clip inside one standard deviation blinds the policy"
+        validate.at_least(f"{where}.normalize.clip_obs", kwargs["clip_obs"], MIN_CLIP_OBS, why=why)
     return kwargs
 
 

@@ -9,7 +9,8 @@ A run lives in ``<log folder>/<algo>/<env id>_<n>/``:
 | ``<env id>.zip``, ``vecnormalize.pkl`` | the final model and normalisation statistics |
 | ``best_model.zip``, ``best_vecnormalize.pkl`` | the model with the lowest evaluation cost so far |
 | ``policy/`` | the best model exported to NumPy with its card (``microg compare --controllers``) |
-| ``checkpoints/`` | ``rl_model_<steps>_steps.zip`` with its normalisation (and replay buffer), ``latest.json`` |
+| ``checkpoints/`` | ``rl_model_<steps>_steps.zip``, its normalisation (and replay buffer), ``latest.json`` |
+| ``checkpoints/best_policy_<steps>_steps/`` | the best model at the last checkpoint, and any since, as ``policy/`` |
 | ``evaluations.json`` | every evaluation: steps, wall time, cost, the project's metrics |
 | ``train.log`` | progress and evaluations with wall-clock time; the total at the end |
 | ``tb/`` | TensorBoard events (the algorithm's and ``eval/``) |
@@ -24,7 +25,9 @@ training or test seed); the cost is :func:`~microg_env.analysis.summary.selectio
 tuner's with the mean excursion at the collision in place of the worst. Every file is written
 atomically; ``latest.json`` is written after its checkpoint's files, so ``--resume`` always finds a
 complete one, and continues the step count, the normalisation statistics, the replay buffer, the
-best cost, the evaluation history and the wall-clock total.
+best cost, the evaluation history and the wall-clock total. A session stopped after its last checkpoint
+(killed) left evaluations, and maybe a best model, of steps a resume trains again: the resume drops
+them and puts back the best model of the evaluations it keeps, so every record is of one timeline.
 """
 
 from __future__ import annotations
@@ -43,10 +46,11 @@ from typing import Any
 
 import numpy as np
 
+from microg_env.controllers.policy import CARD_FILE
 from microg_env.controllers.registry import ACTING_KEYS, deployed_controller, make_controller
-from microg_env.files import atomic_path, folder_lock, read_settings_text, read_yaml, write_text
+from microg_env.files import atomic_path, folder_lock, read_settings_text, read_yaml, replace_folder, write_text
 from microg_env.learning import hyperparams as hp
-from microg_env.learning.export import write_policy_folder
+from microg_env.learning.export import MODEL_FILE, NORMALIZATION_FILE, write_policy_folder
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.validate import fault, shown
 
@@ -65,6 +69,8 @@ ENV_IDS = (
 )
 #: Folders and files of a run.
 CHECKPOINTS, LATEST, POLICY, EVALUATIONS, LOG = "checkpoints", "latest.json", "policy", "evaluations.json", "train.log"
+#: What training needs installed, named when it is missing.
+TRAIN_EXTRA = "microg train needs the train extra: pip install 'microg-env[train]'"
 
 
 class TrainingInterrupted(Exception):
@@ -104,9 +110,13 @@ class TrainSettings:
 def algorithm(name: str):
     """The algorithm class of ``name`` (one of :data:`~microg_env.learning.hyperparams.ALGORITHMS`);
     TQC (truncated quantile critics, an actor built as SAC's) and CrossQ (SAC with batch
-    renormalisation and no target networks) are sb3-contrib's, imported only for them."""
+    renormalisation and no target networks) are sb3-contrib's, imported only for them (a ValueError
+    naming the extra where it is missing)."""
     if name in hp.CONTRIB_ALGORITHMS:
-        import sb3_contrib
+        try:
+            import sb3_contrib
+        except ImportError:
+            raise ValueError(TRAIN_EXTRA) from None
 
         return getattr(sb3_contrib, hp.CONTRIB_ALGORITHMS[name])
     from stable_baselines3 import PPO, SAC
@@ -192,8 +202,9 @@ def resolve(settings: TrainSettings) -> hp.Hyperparams:
 
 
 def check_entry(params: hp.Hyperparams) -> None:
-    """The entry's env_kwargs make the environment and its other keys are the algorithm's keyword
-    arguments: checked before a run folder is made, so a bad file is named and nothing is written."""
+    """The entry's env_kwargs make the environment, its other keys are the algorithm's keyword
+    arguments, and the model they build exports as the run's policy will be exported: checked before
+    a run folder is made, so a bad file is named with its key and nothing is written."""
     import inspect
 
     import gymnasium as gym
@@ -207,24 +218,77 @@ def check_entry(params: hp.Hyperparams) -> None:
     unknown = [key for key in params.algo_kwargs if key not in accepted or key in ("env", "policy")]
     if unknown:
         raise ValueError(f"{where}: {', '.join(map(repr, unknown))} is not an argument of {params.algo.upper()}")
+    from microg_env.learning.vec_env import BatchedVecEnv
+
+    # The model and its normalisation built on the run's environments (a batch of rigs is cheap to
+    # make): what they or the export refuse, they refuse now, named by its key.
+    venv = BatchedVecEnv.make(params.n_envs, **params.env_kwargs)
+    try:
+        refusal = _deployment_fault(params, venv)
+        if refusal is not None:
+            key = _blamed_key(params, venv, refusal)
+            raise ValueError(f"{where}{'' if key is None else f'.{key}'}: {refusal}")
+    finally:
+        venv.close()
+
+
+def _blamed_key(params: hp.Hyperparams, venv, refusal: str) -> str | None:
+    """The key of the entry that, left out, makes it pass (the innermost first); else the first
+    whose leaving out ends this refusal (the entry has another fault too); None if none does."""
+    changed = None
+    for key in _entry_keys(params):
+        without = _deployment_fault(_without(params, key), venv)
+        if without is None:
+            return key
+        if changed is None and without != refusal:
+            changed = key
+    return changed
+
+
+def _deployment_fault(params: hp.Hyperparams, venv) -> str | None:
+    """Why the model of ``params`` cannot be built on ``venv``, or its untrained actor cannot be
+    exported as the run's best will be (:func:`~microg_env.learning.export.export_policy`); None if
+    it can. Their warnings come when the run starts."""
     import warnings
 
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from microg_env.learning.vec_env import BatchedVecEnv
+    from microg_env.learning.export import export_policy
 
-    # The model and its normalisation built once on the run's environments (a batch of rigs is
-    # cheap to make): what they refuse, they refuse now. Their warnings come when the run starts.
-    venv = BatchedVecEnv.make(params.n_envs, **params.env_kwargs)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
             normalized = venv if params.normalize is None else VecNormalize(venv, **params.normalize)
-            algorithm(params.algo)(params.policy, normalized, device="cpu", **hp.algo_arguments(params))
-    except (TypeError, ValueError, AssertionError, KeyError, AttributeError, RuntimeError) as error:
-        raise ValueError(f"{where}: {params.algo.upper()} refuses it: {fault(error)}") from None
-    finally:
-        venv.close()
+            model = algorithm(params.algo)(params.policy, normalized, device="cpu", **hp.algo_arguments(params))
+        except (TypeError, ValueError, AssertionError, KeyError, AttributeError, RuntimeError) as error:
+            return f"{params.algo.upper()} refuses it: {fault(error)}"
+    try:
+        export_policy(model, model.get_vec_normalize_env())
+    except ValueError as error:
+        return f"its policy cannot be exported: {fault(error)}"
+    return None
+
+
+def _entry_keys(params: hp.Hyperparams) -> list[str]:
+    """The keys of an entry a refusal may be blamed on, innermost first: policy_kwargs' and
+    normalize's own, then the algorithm's arguments and normalize."""
+    inner = [f"policy_kwargs.{key}" for key in params.algo_kwargs.get("policy_kwargs") or {}]
+    inner += [f"normalize.{key}" for key in params.normalize or {}]
+    return [*inner, *params.algo_kwargs, *([] if params.normalize is None else ["normalize"])]
+
+
+def _without(params: hp.Hyperparams, key: str) -> hp.Hyperparams:
+    """``params`` with ``key`` (one of :func:`_entry_keys`) left out: at its default."""
+    group, _, name = key.partition(".")
+    if group == "normalize":
+        normalize = None if not name else {k: v for k, v in params.normalize.items() if k != name}
+        return replace(params, normalize=normalize)
+    kwargs = dict(params.algo_kwargs)
+    if name:
+        kwargs[group] = {k: v for k, v in kwargs[group].items() if k != name}
+    else:
+        del kwargs[group]
+    return replace(params, algo_kwargs=kwargs)
 
 
 def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings, hp.Hyperparams, dict[str, Any]]:
@@ -239,6 +303,7 @@ def resumed_run(folder: Path, asked: TrainSettings) -> tuple[Path, TrainSettings
         raise ValueError(f"--resume {str(folder)!r}: cannot read the run ({fault(error)})") from None
     settings = _check_args(folder / "args.yml", args)
     _check_state(folder / CHECKPOINTS, state)
+    _check_algorithm(folder / "args.yml", settings.algo, folder / CHECKPOINTS / state["model"])
     _check_evaluations(folder / EVALUATIONS)
     params = hp.load(settings.algo, settings.env_id, folder / "config.yml")
     target = asked.timesteps if asked.timesteps is not None else settings.timesteps  # args.yml keeps the last
@@ -326,6 +391,9 @@ def _check_evaluations(path: Path) -> None:
         raise ValueError(f"{where}: cannot read the run's evaluations ({fault(error)})") from None
     if not (isinstance(rows, list) and all(isinstance(row, dict) and "cost" in row for row in rows)):
         raise ValueError(f"{where}: not a list of evaluations (JSON objects, each with a cost)")
+    steps = [row.get("timesteps") for row in rows]
+    if not all(type(step) is int and step >= 1 for step in steps):
+        raise ValueError(f"{where}: every evaluation must give its timesteps (a positive integer), got {shown(steps)}")
     for row in rows:
         figures = [row.get(key) for key in ("cost", "compensation_error_pct", "collision_excursion_um")]
         if not all(isinstance(value, int | float) and not isinstance(value, bool) for value in figures):
@@ -337,6 +405,32 @@ def _check_evaluations(path: Path) -> None:
                 f"|compensation error| + x at the collision / 10 um ({error + collision / 10:.6g}): "
                 "a run scored by the worst x at the collision (before 0.12.0) cannot be resumed; start a new run"
             )
+
+
+def _check_algorithm(args: Path, algo: str, model: Path) -> None:
+    """The checkpoint's model is one of ``algo``'s, the algorithm ``args`` names (stable-baselines3
+    records its policy class in the archive): else a ValueError naming both, not an AttributeError
+    deep in loading one algorithm's model as another's."""
+    with zipfile.ZipFile(model) as archive:  # a whole archive holding its data (_check_checkpoint)
+        try:
+            module = json.loads(archive.read("data"))["policy_class"]["__module__"]
+        except (ValueError, KeyError, TypeError):
+            module = None
+    if module in _policy_modules(algo):
+        return
+    holds = f"no {algo.upper()} model"
+    for name in hp.ALGORITHMS:
+        try:
+            if module in _policy_modules(name):
+                holds = f"a {name.upper()} model"
+        except ValueError:
+            continue  # not installed: not what the checkpoint was trained with here
+    raise ValueError(f"--resume: {str(args)!r} names algo {algo}, but its checkpoint {str(model)!r} holds {holds}")
+
+
+def _policy_modules(algo: str) -> set[str]:
+    """The modules of ``algo``'s policy classes."""
+    return {policy.__module__ for policy in algorithm(algo).policy_aliases.values()}
 
 
 def _check_checkpoint(where: str, model: Path, normalization: Path | None) -> None:
@@ -374,9 +468,42 @@ class _Run:
         self.progress, self.echo = progress, log
         self.session_start, self.earlier_wall_s = time.monotonic(), state["wall_s"]
         self.evaluations = _read_json(folder / EVALUATIONS, [])
-        # The best model on disk is the best ever evaluated, even after the last checkpoint.
+        if state["timesteps"] > 0:
+            self.rewind()
+        # The best model on disk is the best of the evaluations (those up to the checkpoint, after rewind).
         costs = [row["cost"] for row in self.evaluations if row.get("best") and row["cost"] is not None]
         self.state["best_cost"] = min(costs, default=None)
+
+    def rewind(self) -> None:
+        """Back to the checkpoint resumed from. Evaluations after it, and a best model saved after
+        it, are of a session stopped before its next checkpoint, whose steps this session trains
+        again: they are dropped, and the best model of the evaluations kept is put back from its
+        copy in ``checkpoints/``. Where there is none (a run of 0.16.0 or earlier), no evaluation kept
+        is marked best any more, for none of their models is on disk: the next one is the best."""
+        steps = self.state["timesteps"]
+        kept = [row for row in self.evaluations if row["timesteps"] <= steps]
+        best = _best_steps(kept)
+        saved = _saved_steps(self.folder / POLICY)
+        note = []
+        if len(kept) < len(self.evaluations):
+            note.append(f"{len(self.evaluations) - len(kept)} evaluation(s) after it dropped")
+        if saved != best:
+            copy = None if best is None else self.folder / CHECKPOINTS / _best_copy(best)
+            if copy is not None and copy.is_dir():
+                self.install_best(copy)
+                note.append(f"the best model of step {saved} replaced by step {best}'s")
+            else:
+                for name in ("best_model.zip", "best_vecnormalize.pkl"):
+                    (self.folder / name).unlink(missing_ok=True)
+                shutil.rmtree(self.folder / POLICY, ignore_errors=True)
+                kept = [row | {"best": False} for row in kept]
+                note.append(f"the best model of step {saved} removed, and no model of an evaluation kept is on disk")
+                best = None
+        _keep_best_copy(self.folder / CHECKPOINTS, best)
+        if note:
+            self.evaluations = kept
+            write_text(self.folder / EVALUATIONS, json.dumps(self.evaluations, indent=1) + "\n")
+            self.log(f"back to the checkpoint at {steps} steps: {'; '.join(note)}")
 
     # -- the log ---------------------------------------------------------------------------
 
@@ -529,6 +656,7 @@ class _Run:
         write_text(folder / LATEST, json.dumps(self.state, indent=2) + "\n")
         if previous_buffer and previous_buffer != files.get("replay_buffer"):
             (folder / previous_buffer).unlink(missing_ok=True)  # one replay buffer is enough (and large)
+        _keep_best_copy(folder, _best_steps(self.evaluations))  # a resume goes back no further
 
     def validate(self, controller) -> tuple[list, float, float]:
         """The runs, failure rate and cost of ``controller`` on the validation schedules, the
@@ -588,13 +716,26 @@ class _Run:
         )
 
     def save_best(self, model, row: dict[str, Any]) -> None:
-        with atomic_path(self.folder / "best_model.zip") as temporary:
-            model.save(temporary)
-        normalization = model.get_vec_normalize_env()
-        if normalization is not None:
-            with atomic_path(self.folder / "best_vecnormalize.pkl") as temporary:
-                normalization.save(str(temporary))
-        write_policy_folder(self.folder / POLICY, model, normalization, self.card(model, row))
+        """The new best model, exported with its card into ``checkpoints/`` (kept until a checkpoint
+        passes a later best: a resume from an earlier checkpoint puts it back), then made the run's."""
+        copy = self.folder / CHECKPOINTS / _best_copy(row["timesteps"])
+        copy.parent.mkdir(exist_ok=True)
+        write_policy_folder(copy, model, model.get_vec_normalize_env(), self.card(model, row))
+        self.install_best(copy)
+
+    def install_best(self, copy: Path) -> None:
+        """The best model kept in ``copy`` made the run's: best_model.zip, best_vecnormalize.pkl, policy/."""
+        for name, target in ((MODEL_FILE, "best_model.zip"), (NORMALIZATION_FILE, "best_vecnormalize.pkl")):
+            if (copy / name).is_file():
+                with atomic_path(self.folder / target) as temporary:
+                    shutil.copyfile(copy / name, temporary)
+
+        def fill(staging: Path) -> None:
+            for path in copy.iterdir():
+                if not path.name.startswith("."):  # not a swap's marker
+                    shutil.copyfile(path, staging / path.name)
+
+        replace_folder(self.folder / POLICY, fill)
 
     def card(self, model, row: dict[str, Any]) -> dict[str, Any]:
         """The policy's provenance: how it acts, the exact command and seed that trained it, its budget."""
@@ -666,6 +807,31 @@ def planned_steps(params: hp.Hyperparams, start: int) -> int | None:
         per_env = count
     chunk = params.n_envs * per_env
     return start + -(-left // chunk) * chunk
+
+
+def _best_copy(steps: int) -> str:
+    """The folder in ``checkpoints/`` keeping the best model evaluated at ``steps``."""
+    return f"best_policy_{steps}_steps"
+
+
+def _best_steps(evaluations: list[dict[str, Any]]) -> int | None:
+    """The step of the last evaluation marked best (its model is the best on disk), None if none is."""
+    return max((row["timesteps"] for row in evaluations if row.get("best")), default=None)
+
+
+def _saved_steps(policy: Path) -> int | None:
+    """The step of the model in the policy folder ``policy`` by its card; None if it has none."""
+    try:
+        return json.loads((policy / CARD_FILE).read_text(encoding="utf-8")).get("timesteps")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _keep_best_copy(checkpoints: Path, steps: int | None) -> None:
+    """Remove every best model kept in ``checkpoints`` (and any swap's leftovers) but the one of ``steps``."""
+    for path in checkpoints.glob("*best_policy_*"):
+        if steps is None or path.name != _best_copy(steps):
+            shutil.rmtree(path, ignore_errors=True)
 
 
 def _next_multiple(steps: int, every: int) -> int:

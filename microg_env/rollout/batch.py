@@ -21,11 +21,11 @@ from microg_env.analysis.summary import failure_rate
 from microg_env.controllers.base import Controller, tell_plants
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.core import TERMINATION_REASONS, LandingCore
-from microg_env.envs.settings import TaskSettings
 from microg_env.params import RigParams
 from microg_env.rollout.episode import PROGRESS_EVERY
 from microg_env.scenarios import Scenario
 from microg_env.sim.reference import simulate_reference
+from microg_env.task import TaskSettings
 from microg_env.trajectory import CHANNELS, Trajectory
 
 #: Rigs stepped in one batch at most: the recorded channels take 14 x 8 bytes per rig and control
@@ -46,6 +46,7 @@ class EpisodeSpec:
     seed: int
     gains: tuple[tuple[str, float], ...] = ()
     params: RigParams | None = None
+    digest: str | None = None  # a policy's contents as its run was specified (RunSpec.controller_digest)
 
 
 def run_batches(
@@ -115,12 +116,14 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
     every = np.arange(n)
     core.reset(every, rngs)
     groups = []  # (name, controller, its rigs)
-    for who in dict.fromkeys((e.controller, e.gains, e.params) for e in episodes):
-        rigs = np.array([i for i, e in enumerate(episodes) if (e.controller, e.gains, e.params) == who])
-        controller, gains, nominal = who
+    for who in dict.fromkeys((e.controller, e.gains, e.params, e.digest) for e in episodes):
+        rigs = np.array([i for i, e in enumerate(episodes) if (e.controller, e.gains, e.params, e.digest) == who])
+        controller, gains, nominal, digest = who
         if isinstance(controller, str):
             nominal = core.base_params if nominal is None else nominal
-            controller = make_controller(controller, core.control_period_s, nominal, dict(gains))
+            controller = make_controller(
+                controller, core.control_period_s, nominal, dict(gains), core.sensor_set, digest
+            )
         controller.reset(np.arange(rigs.size))
         tell_plants(controller, np.arange(rigs.size), [core.episodes[i].params for i in rigs])
         groups.append((who[0] if isinstance(who[0], str) else type(who[0]).__name__, controller, rigs))

@@ -20,6 +20,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field, replace
 from functools import cache
 from importlib import metadata
@@ -194,7 +195,9 @@ def run_many(
     keep_trajectories: bool = False,
 ) -> Iterator[list[tuple[int, RunResult]]]:
     """Run ``specs``, one batch per compiled model, and yield each batch's (index in ``specs``, result)
-    as it ends. A spec or batch that raises gives failed results (``error``), never an exception.
+    as it ends. A spec or batch that raises gives failed results (``error``), never an exception;
+    a process pool that breaks raises (:func:`~microg_env.workers.process_pool`: a RuntimeError
+    saying what to do where its workers could not start).
     ``workers``: the batch's threads and the processes of the ideal references;
     ``progress(runs)``: finished fractions of runs; ``keep_trajectories``: keep each result's
     trajectory and reference (else only metrics, so memory holds one batch)."""
@@ -228,6 +231,8 @@ def run_many(
                     start = time.perf_counter()
                     done.update(members[i] for i, _ in batch)
                     yield [(members[i], _finished(result, elapsed, keep_trajectories)) for i, result in batch]
+            except BrokenProcessPool:  # the pool's fault, not the batch's: no later batch could run
+                raise
             except Exception as error:  # recorded per run: one bad batch must not stop a campaign
                 rest = [i for i in members if i not in done]
                 if progress is not None:
@@ -264,7 +269,9 @@ def _controller(spec: RunSpec):
             f"controller {RETUNED_PID!r} is tuned before it runs: "
             "run it with microg_env.experiments.tuning.run_with_retuning"
         )
-    return make_controller(spec.controller, spec.control_period_s, spec.rig_params(), spec.gains)
+    return make_controller(
+        spec.controller, spec.control_period_s, spec.rig_params(), spec.gains, spec.sensor_set, spec.controller_digest
+    )
 
 
 def _reference(job: tuple) -> Trajectory:
@@ -284,7 +291,8 @@ def _run_group(group: Sequence[RunSpec], workers: int, progress, pool) -> Iterat
     reference per plant and schedule (every controller on a seed meets the same plant), simulated
     as long as its longest run and cut for the others."""
     episodes = [
-        EpisodeSpec(s.controller, s.rig_schedule(), s.seed, tuple(s.gains.items()), s.rig_params()) for s in group
+        EpisodeSpec(s.controller, s.rig_schedule(), s.seed, tuple(s.gains.items()), s.rig_params(), s.controller_digest)
+        for s in group
     ]
     first = group[0]
     for batch in run_batches(episodes, first.batch_kwargs(), workers, progress):

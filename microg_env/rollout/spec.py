@@ -11,6 +11,7 @@ process, so a campaign's stored results are keyed by it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -19,20 +20,21 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 from microg_env import validate
-from microg_env.controllers.pid import PIDGains
-from microg_env.controllers.registry import BASELINES, check_controller_name
-from microg_env.envs.settings import check_control_period
+from microg_env.controllers.pid import PIDGains, load_gains
+from microg_env.controllers.registry import BASELINES, check_controller_name, controller_digest
 from microg_env.imperfections import (
     IMPERFECTION_NAMES,
     PRESETS,
     DomainRandomization,
     Imperfections,
     apply_imperfections,
+    check_parameters_used,
 )
 from microg_env.interface import SENSOR_SETS
 from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides
 from microg_env.scenarios import LoadStep, Scenario, comparison_scenarios
 from microg_env.sim.model import EPISODE_PARAMETERS, check_physics_step, model_states
+from microg_env.task import check_control_period
 from microg_env.validate import shown
 
 #: The controller that :mod:`microg_env.experiments.tuning` re-tunes on each spec's rig and period.
@@ -44,12 +46,21 @@ RANDOMIZE = {False: None, True: DomainRandomization()} | {
 }
 #: Fields added after campaigns were first stored, with their defaults (left out of :meth:`RunSpec.as_dict`
 #: at the default, so the content hash of every spec written before them is unchanged).
-ADDED_FIELDS = {"sensor_set": "extended"}
+ADDED_FIELDS = {"sensor_set": "extended", "controller_digest": None}
 #: Characters of the SHA-256 content hash kept (64 bits: no collision in any campaign's lifetime).
 HASH_CHARS = 16
 #: The fields runs of one batch may differ in (the vector environment steps them together): who
 #: drives and the seed, and the schedule, whose weights, start height and length are each rig's.
-PER_RIG_FIELDS = ("controller", "gains", "seed", "scenario", "loads", "descent_height_m", "duration_s")
+PER_RIG_FIELDS = (
+    "controller",
+    "controller_digest",
+    "gains",
+    "seed",
+    "scenario",
+    "loads",
+    "descent_height_m",
+    "duration_s",
+)
 
 
 @dataclass(frozen=True)
@@ -58,7 +69,8 @@ class RunSpec:
     scenario's schedule ((kg, switch height m or None) pairs; a custom schedule), ``duration_s`` its
     length; ``overrides`` are rig parameters by dotted path; ``gains`` replace fields of the PID's
     tuned gains (``ki_per_s2``, ...); ``imperfections`` switches named imperfections (all on by
-    default)."""
+    default). ``controller_digest`` is not given but read: a policy's contents
+    (:func:`~microg_env.controllers.registry.controller_digest`), None for a classical controller."""
 
     scenario: str = "condition-1"
     controller: str = "pid"
@@ -73,6 +85,7 @@ class RunSpec:
     loads: tuple[tuple[float, float | None], ...] | None = None
     descent_height_m: float | None = None
     sensor_set: str = "extended"  # or "paper": no pad force sensor, no accelerometer
+    controller_digest: str | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         known = comparison_scenarios()
@@ -80,9 +93,10 @@ class RunSpec:
             raise ValueError(f"RunSpec.scenario must be one of {', '.join(known)}, got {shown(self.scenario)}")
         validate.instance("RunSpec.controller", self.controller, str)
         validate.choice("RunSpec.sensor_set", self.sensor_set, tuple(SENSOR_SETS))
-        if self.controller != RETUNED_PID:
-            check_controller_name(self.controller)
         set_ = object.__setattr__
+        if self.controller != RETUNED_PID:
+            check_controller_name(self.controller, self.sensor_set)
+            set_(self, "controller_digest", controller_digest(self.controller))
         set_(self, "seed", validate.integer("RunSpec.seed", self.seed, 0, 2**32 - 1))
         if not isinstance(self.randomize, bool | str) or self.randomize not in RANDOMIZE:
             raise ValueError(
@@ -92,7 +106,14 @@ class RunSpec:
         set_(self, "gains", _named_floats("RunSpec.gains", self.gains, [f.name for f in fields(PIDGains)]))
         if self.gains and self.controller not in (*BASELINES, RETUNED_PID):
             raise ValueError(f"RunSpec.gains: controller {shown(self.controller)} has no PID gains to replace")
+        if self.gains:  # the PID's own check, on the tuned gains these replace
+            try:
+                dataclasses.replace(load_gains("pid-dom" if self.controller == "pid-dom" else "pid"), **self.gains)
+            except ValueError as error:
+                raise ValueError(f"RunSpec.gains: {error}") from None
         set_(self, "imperfections", _named_flags(self.imperfections, list(IMPERFECTION_NAMES)))
+        flags, sensors = self.imperfection_flags(), self.sensor_set
+        check_parameters_used(self.rig_params(), flags, sensors, SENSOR_SETS[sensors], "RunSpec.overrides")
         set_(self, "control_period_us", validate.positive("RunSpec.control_period_us", self.control_period_us, "us"))
         set_(self, "physics_step_us", validate.positive("RunSpec.physics_step_us", self.physics_step_us, "us"))
         check_control_period(self.control_period_s, check_physics_step(self.physics_step_s))
@@ -121,21 +142,36 @@ class RunSpec:
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> RunSpec:
-        """The spec of ``values`` (RunSpec field names; unknown names are refused)."""
+        """The spec of ``values`` (RunSpec field names; unknown names are refused). A
+        ``controller_digest`` (as :meth:`as_dict` writes a policy's) must be the policy's now: a
+        folder whose files changed since is refused, not run as the spec's."""
         validate.instance("run spec", values, Mapping)
         names = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - names)
         if unknown:
             raise ValueError(f"unknown run spec field {shown(unknown[0])}; known: {', '.join(sorted(names))}")
         values = dict(values)
+        recorded = values.pop("controller_digest", None)
         if values.get("loads") is not None:
             values["loads"] = tuple(tuple(load) if isinstance(load, list) else load for load in values["loads"])
-        return cls(**values)
+        spec = cls(**values)
+        if recorded is not None and recorded != spec.controller_digest:
+            raise ValueError(
+                f"RunSpec.controller_digest {shown(recorded)}: controller {shown(spec.controller)} now reads "
+                f"{spec.controller_digest or 'as a classical controller'} (its files changed since the spec was "
+                "written)"
+            )
+        return spec
 
     @property
     def hash(self) -> str:
-        """The content hash: SHA-256 of the canonical JSON of :meth:`as_dict`, first 16 hex digits."""
-        text = json.dumps(self.as_dict(), sort_keys=True, separators=(",", ":"))
+        """The content hash: SHA-256 of the canonical JSON of :meth:`as_dict`, first 16 hex digits;
+        a policy counts by its ``controller_digest``, not the path that names it (``polA``, ``./polA``
+        and its absolute path are one controller)."""
+        identity = self.as_dict()
+        if self.controller_digest is not None:
+            del identity["controller"]
+        text = json.dumps(identity, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()[:HASH_CHARS]
 
     def __hash__(self) -> int:
@@ -158,7 +194,8 @@ class RunSpec:
         """Equal for specs that differ only in who drives and the seed: one rig, schedule, period
         and randomisation (what ``pid-retuned`` is tuned on)."""
         return json.dumps(
-            {k: v for k, v in self.as_dict().items() if k not in ("controller", "gains", "seed")}, sort_keys=True
+            {k: v for k, v in self.as_dict().items() if k not in ("controller", "controller_digest", "gains", "seed")},
+            sort_keys=True,
         )
 
     def replace(self, **changes: Any) -> RunSpec:
@@ -284,3 +321,35 @@ def _loads(values: object) -> tuple[tuple[float, float | None], ...]:
         height = None if load[1] is None else validate.finite("RunSpec.loads height", load[1])
         out.append((mass, height))
     return tuple(out)
+
+
+#: The RunSpec fields that map names to values: a campaign key reaches an entry as FIELD.NAME.
+NESTED_FIELDS = ("overrides", "gains", "imperfections")
+
+
+@functools.cache
+def _plain_fields() -> frozenset[str]:
+    """The RunSpec fields a campaign key sets whole (seeds come from ``seeds:``)."""
+    return frozenset(f.name for f in fields(RunSpec) if f.init) - {*NESTED_FIELDS, "seed"}
+
+
+@functools.cache
+def _rig_parameters() -> frozenset[str]:
+    return frozenset(parameter_paths())
+
+
+def spec_entry(key: str) -> tuple[str, ...]:
+    """Where the campaign key ``key`` lands in a RunSpec: ``(field,)``, or ``(field, name)`` in one
+    of :data:`NESTED_FIELDS`; a rig parameter's dotted path lands in overrides, so
+    ``pad.stiffness_n_per_m`` and ``overrides.pad.stiffness_n_per_m`` land alike."""
+    part, _, rest = key.partition(".")
+    if key in _plain_fields():
+        return (key,)
+    if part in NESTED_FIELDS and rest:
+        return (part, rest)
+    if key in _rig_parameters():
+        return ("overrides", key)
+    raise ValueError(
+        f"{shown(key)} is neither a run spec field, gains.NAME, imperfections.NAME nor a rig parameter "
+        "(dotted path, e.g. qzs.guide_friction_n)"
+    )

@@ -20,12 +20,12 @@ from gymnasium.utils.env_checker import check_env
 from microg_env import Imperfections, LoadStep, Scenario
 from microg_env.controllers.registry import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
-from microg_env.envs.settings import TaskSettings
 from microg_env.envs.vector import MicroGravityLandingVectorEnv
 from microg_env.imperfections import DomainRandomization
 from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES, Readings, gated_actions, highpass_gain
 from microg_env.params import RigParams
 from microg_env.sim.model import drive_inertia_kg_m2
+from microg_env.task import TaskSettings
 
 ENV_ID = "microg_env:MicroGravityLanding-v1"
 CONDITIONS_1 = Scenario("condition 1", (LoadStep(0.49),), descent_height_m=0.09)

@@ -49,7 +49,7 @@ def test_spec_hash_is_content_only_and_stable_across_processes():
         spec.replace(controller="feedforward"),
         spec.replace(overrides={"servo.speed_loop_gain_hz": 150.0}),
         spec.replace(gains={"ki_per_s2": 5000.0}),
-        spec.replace(imperfections={"friction": False}),
+        spec.replace(imperfections={"cogging": False}),  # friction off would leave its guide friction unused
         spec.replace(randomize=True),
         spec.replace(randomize="full"),
         spec.replace(randomize="wider"),
@@ -290,7 +290,8 @@ def test_campaign_expands_grid_linked_keys_samples_and_seeds(tmp_path):
         ("name: ../up\n", "name must be letters"),
         ("name: t\nsweep: {control_period_us: [150]}\n", "whole number of physics steps"),
         (
-            "name: t\nsweep: {a: [1, 2], b: [1, 2]}\nsamples: {count: 1000000, draw: {c: {uniform: [0, 1]}}}\n",
+            "name: t\nsweep: {duration_s: [1, 2], randomize: [true, false]}\n"
+            "samples: {count: 1000000, draw: {descent_height_m: {uniform: [0.05, 0.06]}}}\n",
             "runs, more than",
         ),
     ],

@@ -1162,9 +1162,9 @@ def test_the_working_ids_recipe_beats_its_zero_residual_at_the_collision_after_a
     shipped policy's paired return over seeds 1000-1019 is the zero residual's, -0.13 +- 0.96), so
     the test reads what the recipe is chosen by."""
     from microg_env.controllers.registry import ACTING_KEYS, load_policy, policy_card
-    from microg_env.envs.settings import TaskSettings
     from microg_env.learning.train import TrainSettings, train
     from microg_env.rollout.batch import evaluate_batch
+    from microg_env.task import TaskSettings
 
     settings = TrainSettings(
         algo="sac",

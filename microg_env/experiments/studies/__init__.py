@@ -14,11 +14,13 @@ from microg_env.experiments.studies import (
     sensitivity,
     transmission,
 )
+from microg_env.experiments.studies.groups import nothing_completed, successes
 from microg_env.files import write_text
 
 #: The study pages by the name a campaign's ``report:`` gives: each module's ``render(campaign,
-#: table, folder)`` returns the page's lines and draws its figures, and its ``COLUMNS`` are the
-#: keys the campaign must sweep or sample.
+#: table, folder)`` returns the page's lines and draws its figures, its ``COLUMNS`` are the keys
+#: the campaign must sweep or sample, and its ``check(campaign)``, where it has one, refuses (ValueError)
+#: a campaign the page cannot read.
 STUDIES = {
     "period-bandwidth": period_bandwidth,
     "fifty-gram-floor": fifty_gram_floor,
@@ -31,8 +33,12 @@ REPORT_FILE = "report.md"
 
 
 def write_study(campaign, table, folder: Path) -> Path:
-    """Write ``folder/report.md`` and its figures for ``campaign``'s results ``table``."""
-    lines = STUDIES[campaign.report].render(campaign, table, folder)
+    """Write ``folder/report.md`` and its figures for ``campaign``'s results ``table`` (a page that
+    says so where no run completed)."""
+    if successes(table).num_rows:
+        lines = STUDIES[campaign.report].render(campaign, table, folder)
+    else:
+        lines = nothing_completed(campaign, table, folder)
     path = folder / REPORT_FILE
     write_text(path, "\n".join(lines).rstrip() + "\n")
     return path

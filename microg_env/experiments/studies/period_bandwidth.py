@@ -10,11 +10,9 @@ import pyarrow as pa
 from microg_env.analysis.formatting import MISSING, format_number
 from microg_env.analysis.plots import figure_class, save_figure
 from microg_env.experiments.studies.groups import (
-    distinct,
     failed,
     finite,
     grouped,
-    in_order,
     markdown_table,
     page_header,
     successes,
@@ -22,8 +20,9 @@ from microg_env.experiments.studies.groups import (
 from microg_env.experiments.tuning import RETUNE_KI
 
 #: The swept columns the page reads.
-COLUMNS = ("servo.speed_loop_gain_hz",)
-KEYS = ["controller", "control_period_us", "servo.speed_loop_gain_hz"]
+BANDWIDTH = "servo.speed_loop_gain_hz"
+COLUMNS = (BANDWIDTH,)
+KEYS = ["controller", "control_period_us", BANDWIDTH]
 #: The metrics of the page's table and figure: (column, scale to the printed unit, printed as).
 ERROR = "summary_compensation_error"
 GRAVITY = "summary_residual_gravity_g"
@@ -64,13 +63,15 @@ def render(campaign, table: pa.Table, folder: Path) -> list[str]:
         ],
     )
     failures = grouped(failed(table), KEYS, [("failed", "sum")])
-    controllers, periods = in_order(ok, "controller"), distinct(ok, "control_period_us")[::-1]
-    bandwidths = distinct(ok, "servo.speed_loop_gain_hz")
-    groups = [(c, p, b) for c in controllers for p in periods for b in bandwidths]
+    groups = _groups(campaign)
+    controllers = list(dict.fromkeys(controller for controller, _, _ in groups))
+    periods = sorted({period for _, period, _ in groups}, reverse=True)
+    bandwidths = sorted({bandwidth for _, _, bandwidth in groups})
 
     rows = []
     for group in groups:
         cell = cells.get(group, {})
+        failures_of = failures.get(group)
         kp, ki = cell.get("tuned_kp_per_s_first"), cell.get("tuned_ki_per_s2_first")
         rows.append(
             [
@@ -83,7 +84,7 @@ def render(campaign, table: pa.Table, folder: Path) -> list[str]:
                 f"{format_number(cell.get(f'{FREE_FALL}_max'), '.2f', 1e6)}",
                 f"{format_number(cell.get(f'{COLLISION}_mean'), '.2f', 1e6)} / "
                 f"{format_number(cell.get(f'{COLLISION}_max'), '.2f', 1e6)}",
-                str(failures.get(group, {}).get("failed_sum", 0)),
+                MISSING if failures_of is None else str(failures_of["failed_sum"]),
                 f"{kp:g}, {ki:g}" if kp is not None else MISSING,
             ]
         )
@@ -96,6 +97,17 @@ def render(campaign, table: pa.Table, folder: Path) -> list[str]:
         "![Errors and excursions against control period and speed-loop bandwidth](period_bandwidth.png)",
         "",
     ]
+
+
+def _groups(campaign) -> list[tuple]:
+    """The page's groups, (controller, period, bandwidth), of the campaign's runs (a group whose
+    runs all failed included): the controllers in the campaign's order, then the periods longest
+    first, then the bandwidths lowest first."""
+    found = dict.fromkeys(
+        (run.spec.controller, run.spec.control_period_us, run.columns[BANDWIDTH]) for run in campaign.runs()
+    )
+    controllers = list(dict.fromkeys(controller for controller, _, _ in found))
+    return sorted(found, key=lambda group: (controllers.index(group[0]), -group[1], group[2]))
 
 
 def _findings(ok: pa.Table, cells: dict, controllers: list, periods: list, bandwidths: list) -> list[str]:
@@ -132,17 +144,25 @@ def _findings(ok: pa.Table, cells: dict, controllers: list, periods: list, bandw
 
 
 def _draw(cells: dict, controllers: list, periods: list, bandwidths: list, folder: Path) -> None:
-    """period_bandwidth.png: each metric's mean against the period, a line per controller and bandwidth."""
+    """period_bandwidth.png: each metric's mean against the period, a line per controller and
+    bandwidth, on log axes (a panel no run gave a positive value says so instead)."""
     figure = figure_class()(figsize=(11, 4.2))
     axes = figure.subplots(1, 3)
     for ax, (column, scale, label) in zip(axes, FIGURE_PANELS, strict=True):
+        reached = False
         for controller, style in zip(controllers, ("-o", "--s", ":^"), strict=False):
             for bandwidth in bandwidths:
                 means = [cells.get((controller, p, bandwidth), {}).get(f"{column}_mean") for p in periods]
                 values = [math.nan if mean is None else mean * scale for mean in means]
                 ax.plot(periods, values, style, label=f"{controller}, {bandwidth:g} Hz")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
+                reached |= any(value > 0 for value in values)
+        if reached:
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+        else:
+            ax.text(0.5, 0.5, "no run gave a value", transform=ax.transAxes, ha="center", va="center")
+            ax.set_xticks([])
+            ax.set_yticks([])
         ax.set_xlabel("control period (µs)")
         ax.set_title(label, fontsize=9)
         ax.invert_xaxis()

@@ -14,10 +14,10 @@ from pathlib import Path
 from typing import Any
 
 from microg_env import validate
-from microg_env.controllers.registry import BASELINES
-from microg_env.imperfections import DomainRandomization, Imperfections
+from microg_env.imperfections import DomainRandomization, Imperfections, check_parameters_used
 from microg_env.interface import (
     ACTION_MODES,
+    BASELINES,
     DESCENT_SCALE_M_S,
     MIXED_SENSORS,
     RESIDUAL_HIGHPASS_RANGE_HZ,
@@ -86,6 +86,8 @@ class TaskSettings:
         put("hidden_observations", hidden_entries(self.hidden_observations))
         put("params", RigParams() if self.params is None else self.params)
         validate.instance("params", self.params, RigParams)
+        missing = SENSOR_SETS.get(self.sensor_set, ())  # mixed: each episode draws a set
+        check_parameters_used(self.params, self.imperfections, self.sensor_set, missing, "params")
         put("physics_step_s", check_physics_step(self.physics_step_s))
         put("control_period_s", check_control_period(self.control_period_s, self.physics_step_s))
         put("decision_period", validate.integer("decision_period", self.decision_period, 1, 1000))

@@ -1,0 +1,300 @@
+"""Policy folders as they are read and deployed: a card is the task its policy was trained on, said
+once each (no unknown or repeated key, an env_id its env_kwargs agree with, a known sensor set); a
+policy runs only on a rig whose sensors it read in training, and sees there what training showed it;
+a network that would act blind or give NaN is refused, naming its folder."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from microg_env.cli import main
+from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy
+from microg_env.controllers.registry import (
+    ACTING_KEYS,
+    check_controller_name,
+    check_policy_folder,
+    make_controller,
+    policy_card,
+    shipped_policies,
+    shipped_policy_folder,
+)
+from microg_env.interface import OBSERVATION_INDEX, SENSOR_SETS
+from microg_env.rollout.spec import RunSpec
+
+#: The rigs each shipped policy reads all it read in training on: the v1-v4 residuals read the pad
+#: force and the accelerometer, which the paper's rig lacks; the gated ones hide them from the agent.
+RUNS_ON = {
+    "residual-ppo": {"extended"},
+    "residual-ppo-adaptive": {"extended"},
+    "residual-sac-adaptive": {"extended"},
+    "residual-sac-gated": {"extended", "paper"},
+    "residual-sac-setpoint": {"extended", "paper"},
+}
+PAPER_ONLY = SENSOR_SETS["paper"]
+
+
+def _policy(tmp_path: Path, name: str = "residual-ppo", **env_kwargs) -> Path:
+    """A copy of shipped policy ``name`` with ``env_kwargs`` changed in its card."""
+    folder = tmp_path / "policy"
+    shutil.copytree(shipped_policy_folder(name), folder)
+    card = json.loads((folder / CARD_FILE).read_text())
+    card["env_kwargs"] |= env_kwargs
+    (folder / CARD_FILE).write_text(json.dumps(card))
+    return folder
+
+
+# -- sensor sets -------------------------------------------------------------------------------------
+
+
+def test_each_shipped_policy_runs_on_the_sensor_sets_whose_readings_it_was_trained_on():
+    assert set(shipped_policies()) == set(RUNS_ON)
+    for name, rigs in RUNS_ON.items():
+        assert "sensor_set" not in policy_card(shipped_policy_folder(name))["env_kwargs"]  # the default: extended
+        for rig in SENSOR_SETS:
+            if rig in rigs:
+                assert check_controller_name(name, rig) == name
+            else:
+                with pytest.raises(
+                    ValueError, match=f"policy {name!r} was trained on the 'extended' sensor set"
+                ) as refused:
+                    check_controller_name(name, rig)
+                message = str(refused.value)
+                assert f"which the {rig!r} sensor set lacks" in message
+                assert "lander_accel, pad_force" in message
+
+
+def test_a_policy_on_a_rig_lacking_what_it_read_is_refused_before_any_run(monkeypatch, capsys):
+    """RunSpec (campaigns, ``microg run``), ``compare`` and the CLI refuse it before a run starts."""
+    from microg_env.experiments import comparison
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("a run started")
+
+    monkeypatch.setattr(comparison, "run_many", no_run)
+    with pytest.raises(ValueError, match="'residual-sac-adaptive' was trained on the 'extended' sensor set"):
+        RunSpec("condition-1", "residual-sac-adaptive", sensor_set="paper")
+    assert RunSpec("condition-1", "residual-sac-gated", sensor_set="paper").sensor_set == "paper"
+    with pytest.raises(ValueError, match="'residual-ppo' was trained on the 'extended' sensor set"):
+        comparison.compare(["adaptive", "residual-ppo"], ["condition-1"], seeds=1, sensor_set="paper")
+    code = main(["compare", "--controllers", "adaptive,residual-ppo-adaptive", "--sensors", "paper"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert "--controllers: policy 'residual-ppo-adaptive' was trained on the 'extended' sensor set" in err
+    assert "'paper'" in err
+
+
+class Recording:
+    """A policy that records the observations it is shown."""
+
+    def __init__(self, policy) -> None:
+        self.policy, self.seen = policy, []
+
+    def predict(self, observation, deterministic=True):
+        self.seen.append(np.array(observation))
+        return self.policy.predict(observation, deterministic)
+
+
+def test_a_policy_trained_on_the_papers_rig_sees_there_and_on_every_sensor_what_training_showed(tmp_path):
+    """Trained on the paper's rig, a policy read 0 for the pad force and the accelerometer: deployed
+    with every sensor it reads 0 there too; a policy trained on both rigs runs on both as it is."""
+    folder = _policy(tmp_path, sensor_set="paper")
+    readings = np.linspace(0.1, 1.0, len(OBSERVATION_INDEX), dtype=np.float32)
+    for rig in SENSOR_SETS:
+        controller = make_controller(str(folder), 1e-3, sensor_set=rig)
+        controller.policy = recording = Recording(controller.policy)
+        shown = readings.copy()
+        shown[[OBSERVATION_INDEX[entry] for entry in SENSOR_SETS[rig]]] = 0.0  # what the rig reads
+        controller(shown)
+        expected = shown.copy()
+        expected[[OBSERVATION_INDEX[entry] for entry in PAPER_ONLY]] = 0.0
+        expected[[OBSERVATION_INDEX["previous_action"], OBSERVATION_INDEX["base_command"]]] = 0.0  # the first decision
+        np.testing.assert_array_equal(recording.seen[0][0], expected)
+    mixed = _policy(tmp_path / "mixed", sensor_set="mixed")
+    for rig in (*SENSOR_SETS, "mixed"):
+        assert check_controller_name(str(mixed), rig) == str(mixed)
+    with pytest.raises(ValueError, match=r"which the 'paper' sensor set \(drawn by 'mixed'\) lacks"):
+        check_controller_name("residual-ppo", "mixed")
+
+
+# -- cards -------------------------------------------------------------------------------------------
+
+
+def _contradictions():
+    """Each acting key left out of a card whose env_id registers it at another value than its
+    default: the environment trained with the registered value, a deployment would read the default."""
+    from dataclasses import fields
+
+    from microg_env.task import TaskSettings
+
+    defaults = {option.name: option.default for option in fields(TaskSettings)}
+    ours = [
+        spec for spec in gym.registry.values() if spec.entry_point == "microg_env.envs.landing:MicroGravityLandingEnv"
+    ]
+    for key in ACTING_KEYS:
+        spec = next(spec for spec in ours if key in spec.kwargs and spec.kwargs[key] != defaults[key])
+        env_kwargs = {k: v for k, v in spec.kwargs.items() if k != key}
+        yield f"{key} left out of {spec.id}", {"env_id": spec.id, "env_kwargs": env_kwargs}, key
+
+
+def _bad_cards():
+    """(case, card text, what the error names) for every kind of bad card."""
+    card = json.loads((shipped_policy_folder("residual-ppo") / CARD_FILE).read_text())
+    for value in ["telepathy", "Paper", "", None, 1, True, ["paper"], {"paper": 1}]:
+        yield (
+            f"sensor_set {value!r}",
+            json.dumps(card | {"env_kwargs": card["env_kwargs"] | {"sensor_set": value}}),
+            ("sensor_set"),
+        )
+    yield "unknown key", json.dumps(card | {"sensor_sets": "paper"}), "unknown key 'sensor_sets'"
+    yield (
+        "unknown env_kwargs key",
+        json.dumps(card | {"env_kwargs": card["env_kwargs"] | {"sensors": "paper"}}),
+        ("env_kwargs.sensors is not a setting"),
+    )
+    text = json.dumps(card)
+    yield "repeated key", text.replace('"seed": 0', '"seed": 0, "seed": 1'), "key 'seed' is given twice"
+    yield (
+        "repeated env_kwargs key",
+        text.replace('"decision_period": 5', '"decision_period": 5, "decision_period": 1'),
+        ("key 'decision_period' is given twice"),
+    )
+    for env_id in ["CartPole-v1", "MicroGravityLanding-v9", 1, None]:
+        yield f"env_id {env_id!r}", json.dumps(card | {"env_id": env_id}), "env_id must be one of"
+    for case, contradiction, key in _contradictions():
+        # without action_mode the residual settings left make a speed task, which the task refuses first
+        named = "only action_mode='residual' has" if key == "action_mode" else f"env_kwargs leaves out {key}"
+        yield case, json.dumps(card | contradiction), named
+
+
+BAD_CARDS = list(_bad_cards())
+
+
+def test_every_acting_key_has_a_registered_id_to_contradict():
+    assert [key for *_, key in _contradictions()] == list(ACTING_KEYS)
+
+
+@pytest.mark.parametrize(("case", "text", "named"), BAD_CARDS, ids=[case for case, *_ in BAD_CARDS])
+def test_a_generated_bad_card_is_refused_in_one_line_naming_the_card(case, text, named, tmp_path, capsys):
+    folder = _policy(tmp_path)
+    (folder / CARD_FILE).write_text(text)
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    code = main(["run", "--controller", str(folder), "--duration", "0.01", "--json"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1, err
+    assert str(folder / CARD_FILE) in err, err
+    assert named in err, err
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def test_a_card_may_change_an_acting_setting_of_its_env_id_as_a_training_entry_may(tmp_path):
+    """training/sac_on_dither.yml trains v4 on another base controller: its card is v4's with it."""
+    kwargs = dict(gym.spec("MicroGravityLanding-Residual-v4").kwargs)
+    folder = _policy(tmp_path, **kwargs | {"base_controller": "adaptive-dither"})
+    card = json.loads((folder / CARD_FILE).read_text())
+    (folder / CARD_FILE).write_text(json.dumps(card | {"env_id": "MicroGravityLanding-Residual-v4"}))
+    assert policy_card(folder)["env_kwargs"]["base_controller"] == "adaptive-dither"
+
+
+# -- the network ---------------------------------------------------------------------------------------
+
+
+def _network(**changes) -> MLPPolicy:
+    rng = np.random.default_rng(0)
+    size = len(OBSERVATION_INDEX)
+    values = {
+        "weights": (rng.normal(0.0, 0.5, (4, size)), rng.normal(0.0, 0.5, (1, 4))),
+        "biases": (np.zeros(4), np.zeros(1)),
+        "activation": "tanh",
+        "squash": True,
+        "obs_mean": np.zeros(size),
+        "obs_var": np.ones(size),
+        "clip_obs": 10.0,
+        "epsilon": 1e-8,
+    }
+    return MLPPolicy(**values | changes)
+
+
+@pytest.mark.parametrize(
+    ("changes", "named"),
+    [
+        ({"clip_obs": 0.0}, "clip_obs"),
+        ({"clip_obs": -10.0}, "clip_obs"),
+        ({"clip_obs": float("nan")}, "clip_obs"),
+        ({"clip_obs": float("inf")}, "clip_obs"),
+        ({"clip_obs": 1e-30}, "clip_obs must be at least 1"),  # a blind policy, accepted in 0.16
+        ({"clip_obs": 0.5}, "clip_obs must be at least 1"),
+        ({"epsilon": -1e-3}, "epsilon"),
+        ({"epsilon": float("nan")}, "epsilon"),
+        ({"epsilon": float("inf")}, "epsilon"),
+        ({"epsilon": 0.0, "obs_var": np.r_[np.ones(9), 0.0]}, r"obs_var \+ epsilon"),
+        ({"mean_clip": -1.0}, "mean_clip"),
+        ({"squash": "false"}, "squash"),
+    ],
+)
+def test_a_network_that_would_act_blind_or_give_nan_is_refused(changes, named):
+    assert np.isfinite(_network().predict(np.ones(len(OBSERVATION_INDEX)))[0]).all()
+    with pytest.raises(ValueError, match=named):
+        _network(**changes)
+
+
+@pytest.mark.parametrize(("key", "value"), [("epsilon", -1.0), ("clip_obs", 0.0), ("clip_obs", -5.0)])
+def test_a_policy_file_with_a_blind_or_nan_normalisation_is_refused_naming_its_folder(key, value, tmp_path, capsys):
+    folder = _policy(tmp_path)
+    with np.load(folder / NETWORK_FILE) as data:
+        arrays = {name: data[name] for name in data.files}
+    meta = json.loads(str(arrays["meta"])) | {key: value}
+    np.savez(folder / NETWORK_FILE, **arrays | {"meta": np.array(json.dumps(meta))})
+    with pytest.raises(ValueError, match=rf"policy folder {str(folder)!r}: cannot read {NETWORK_FILE} \({key} must be"):
+        check_policy_folder(folder)
+    code = main(["run", "--controller", str(folder), "--duration", "0.01", "--json"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert str(folder) in err, err
+    assert key in err, err
+
+
+# -- a comparison's controllers --------------------------------------------------------------------------
+
+
+def test_one_policy_spelled_twice_in_a_comparison_is_refused_naming_both_spellings(tmp_path, monkeypatch):
+    from microg_env.experiments import comparison
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("a run started")
+
+    monkeypatch.setattr(comparison, "run_many", no_run)
+    folder = _policy(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    for other in ("./policy", str(folder), "policy/../policy"):
+        with pytest.raises(ValueError, match="is given twice") as refused:
+            comparison.compare(["policy", other], ["condition-1"], seeds=1)
+        assert "'policy'" in str(refused.value)
+        assert repr(other) in str(refused.value)
+
+
+@pytest.mark.parametrize(
+    ("settings", "named"),
+    [
+        ({"residual_gate_on": "setpoint", "residual_gate_m": None}, "there is no gate to place"),
+        ({"residual_highpass_order": 2, "residual_highpass_hz": 0.0}, "there is no high-pass to cascade"),
+        ({"action_mode": "speed"}, "only action_mode='residual' has a base controller"),
+    ],
+)
+def test_a_card_is_read_through_the_tasks_own_check(settings, named, tmp_path, capsys):
+    """Cards the environment would refuse were deployed with the refused setting ignored (a gate
+    point without a gate, a second high-pass stage without a corner, a speed policy with a base)."""
+    folder = _policy(tmp_path)
+    card = json.loads((folder / CARD_FILE).read_text())
+    card["env_kwargs"] = {k: v for k, v in (card["env_kwargs"] | settings).items() if v is not None}
+    (folder / CARD_FILE).write_text(json.dumps(card))
+    with pytest.raises(ValueError, match=named):
+        check_controller_name(str(folder))
