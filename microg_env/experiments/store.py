@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import uuid
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -31,6 +32,8 @@ from microg_env.validate import fault
 SUMMARY_PREFIX = "summary_"
 #: The campaign's table in its folder.
 RESULTS_FILE = "results.parquet"
+#: A terminal's colour and cursor codes, which an error from a Ray worker carries (not stored).
+TERMINAL_CODES = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 #: Status of a run that completed (its metrics are set) and of one that raised.
 OK, FAILED = "ok", "failed"
 
@@ -52,7 +55,7 @@ def result_row(result: RunResult, columns: Mapping[str, Any]) -> dict[str, Any]:
     row: dict[str, Any] = {
         "spec_hash": spec.hash,
         "status": OK if result.ok else FAILED,
-        "error": result.error,
+        "error": None if result.error is None else TERMINAL_CODES.sub("", result.error),
         "scenario": spec.scenario,
         "controller": spec.controller,
         "seed": spec.seed,

@@ -339,7 +339,13 @@ def _literal_call(text: str, where: str) -> dict[str, Any]:
         if isinstance(node, ast.List):
             return [value(item) for item in node.elts]
         if isinstance(node, ast.Dict):
-            return {ast.literal_eval(k): value(v) for k, v in zip(node.keys, node.values, strict=True)}
+            if None in node.keys:  # a ``**mapping``
+                raise ValueError(f"{where}: only literal values may appear in {shown(text)}")
+            keys = [ast.literal_eval(k) for k in node.keys]
+            repeated = next((key for i, key in enumerate(keys) if key in keys[:i]), None)
+            if repeated is not None:  # the last would win, silently
+                raise ValueError(f"{where}: key {shown(repeated)} is given twice in {shown(text)}")
+            return {key: value(v) for key, v in zip(keys, node.values, strict=True)}
         try:
             return ast.literal_eval(node)
         except ValueError:

@@ -393,3 +393,10 @@ def test_log_uniform_draws_do_not_move_with_the_last_bit_of_exp(method, monkeypa
     monkeypatch.setattr(math, "exp", lambda x: float(np.nextafter(exp(x), np.inf)))
     monkeypatch.setattr(np, "exp", lambda x, *a, **k: np.nextafter(np_exp(x, *a, **k), np.inf))
     assert [run.spec.hash for run in Campaign.from_dict(data).runs()] == exact
+
+
+def test_a_stored_error_carries_no_terminal_codes():
+    """A Ray worker's error came with its colour codes into the table (``\\x1b[36mray::_run_task()``)."""
+    spec = RunSpec(**SHORT)
+    row = result_row(RunResult(spec, None, "RayTaskError(ValueError): \x1b[36mray::_run_task()\x1b[39m (pid=1)"), {})
+    assert row["error"] == "RayTaskError(ValueError): ray::_run_task() (pid=1)"

@@ -365,3 +365,15 @@ def test_an_option_a_resume_cannot_change_is_named_with_both_values(killed_run, 
     assert main(["train", "--resume", str(folder), "--algo", "sac", "--quiet"]) == 2
     err = capsys.readouterr().err
     assert f"--algo cannot change ('sac' asked, 'ppo' in {str(folder / 'args.yml')!r})" in err
+
+
+@pytest.mark.parametrize(
+    ("key", "text"),
+    [
+        ("normalize", "{'norm_obs': True, 'clip_obs': 5.0, 'norm_obs': False}"),
+        ("policy_kwargs", "{'net_arch': [8], 'net_arch': [64, 64]}"),
+    ],
+)
+def test_a_key_given_twice_in_a_dict_string_is_refused_before_a_run(tmp_path, key, text):
+    """The YAML loader refuses a repeated key, but a dict written as a string kept its last value."""
+    _refused_before_a_run(tmp_path, "ppo", key, "is given twice", **{key: text})
