@@ -1051,8 +1051,9 @@ def test_validation_on_the_residual_task_drives_a_speed_environment(env_id):
 @pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL])
 def test_a_run_killed_in_its_final_evaluation_is_finished_by_a_resume(tmp_path, signum):
-    """SIGTERM or SIGKILL while the run, checkpointed at its target, evaluates its last model: no
-    handler runs, and ``--resume`` at the same target evaluates and exports what is missing."""
+    """SIGTERM (stopped as Ctrl-C stops it) or SIGKILL (no handler runs) while the run, checkpointed
+    at its target, evaluates its last model: ``--resume`` at the same target evaluates and exports
+    what is missing."""
     logs = tmp_path / "logs"
     command = [sys.executable, "-m", "microg_env.cli", "train", "-conf", str(_tiny_hyperparams(tmp_path, "ppo"))]
     command += ["--timesteps", "128", "--eval-freq", "100000", "--eval-episodes", "3", "--checkpoint-freq", "100000"]
