@@ -128,3 +128,29 @@ def test_the_cycle_finder_finds_a_circle_and_the_layer_check_an_upward_import():
     graph = defaultdict(dict, {"a": {"b": 1}, "b": {"c": 1}, "c": {"a": 1}, "d": {"a": 1}})
     assert _cycles(graph) == [["a", "b", "c"]]
     assert _layer("microg_env.sim.model") < _layer("microg_env.analysis.metrics")
+
+
+RESEARCH = PACKAGE.parent / "research"
+
+
+def _top_level_imports(path: Path) -> set[str]:
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            names |= {alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def test_the_product_never_imports_the_research_probes():
+    """The package, the user's tools in training/, the benchmarks and the default suite import no
+    module of research/ (the probes are the research record, not the product)."""
+    probes = {path.stem for path in RESEARCH.glob("*.py")} - {"conftest"} | {"research"}
+    assert {"partial_oracles", "recipe_probe", "sac_probes"} <= probes
+    product = [*PACKAGE.rglob("*.py"), *(PACKAGE.parent / "training").glob("*.py")]
+    product += [*(PACKAGE.parent / "benchmarks").glob("*.py"), *(PACKAGE.parent / "tests").rglob("*.py")]
+    offenders = {str(path): sorted(_top_level_imports(path) & probes) for path in product}
+    assert not {path: names for path, names in offenders.items() if names}
+    reaching = [path.name for path in (PACKAGE.parent / "tests").rglob("*.py") if '/ "research"' in path.read_text()]
+    assert reaching == [Path(__file__).name]  # this test alone names the folder

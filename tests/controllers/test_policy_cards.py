@@ -195,7 +195,7 @@ def test_a_generated_bad_card_is_refused_in_one_line_naming_the_card(case, text,
 
 
 def test_a_card_may_change_an_acting_setting_of_its_env_id_as_a_training_entry_may(tmp_path):
-    """training/sac_on_dither.yml trains v4 on another base controller: its card is v4's with it."""
+    """research/sac_on_dither.yml trains v4 on another base controller: its card is v4's with it."""
     kwargs = dict(gym.spec("MicroGravityLanding-Residual-v4").kwargs)
     folder = _policy(tmp_path, **kwargs | {"base_controller": "adaptive-dither"})
     card = json.loads((folder / CARD_FILE).read_text())

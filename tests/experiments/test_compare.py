@@ -260,7 +260,7 @@ def test_the_gated_policy_shipped_for_v5_records_its_training():
 
 
 def test_the_setpoint_gated_policy_records_its_training():
-    """residual-sac-setpoint: the best of five seeds of training/sac_gate_on_setpoint.yml (v5's SAC
+    """residual-sac-setpoint: the best of five seeds of research/sac_gate_on_setpoint.yml (v5's SAC
     recipe gated on the high-passed setpoint) by the selection cost on 200 validation episodes,
     shipped from the same seed's run of the working id's packaged recipe (sac.yml's v6 entry, the
     same task and recipe: bit for bit the same network), evaluated every 2e4 steps on 40 episodes,

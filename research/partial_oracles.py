@@ -7,7 +7,7 @@ stiffness and the friction levels), on plants and drives drawn by ``DomainRandom
 and its mean x in free fall and at the collision is printed beside the feed-forward's and the
 oracle's. The "what knowing the plant is worth" numbers of docs/controllers.md come from the default arguments.
 
-Run: ``python training/partial_oracles.py [--condition 1] [--seeds 1000,1001,1002,1003,1004]``.
+Run: ``python research/partial_oracles.py [--condition 1] [--seeds 1000,1001,1002,1003,1004]``.
 """
 
 from __future__ import annotations

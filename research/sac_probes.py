@@ -19,7 +19,7 @@ alone first. The changes:
 A probe, not a recipe: ``microg train`` does not take these options. docs/controllers.md ("The
 gate's step") reports seed 6 of each.
 
-Run: ``python training/sac_probes.py [--stack N | --privileged] [--peak-weight K] [--set KEY=VALUE]
+Run: ``python research/sac_probes.py [--stack N | --privileged] [--peak-weight K] [--set KEY=VALUE]
 --seed 6 [--timesteps 60000] [--eval-every 20000] [--episodes 40]``.
 """
 

@@ -14,7 +14,7 @@ first step with the foot below the pad's surface to the first step after it with
 bound of the comparison's "x at the collision", and a step that crosses a boundary counts whole
 to the later phase.
 
-Run: ``python training/reward_by_phase.py [--env MicroGravityLanding-Residual-v5]
+Run: ``python research/reward_by_phase.py [--env MicroGravityLanding-Residual-v5]
 [--policy residual-sac-gated] [--seeds 40] [--reward-scale-m 1e-8]``.
 """
 
@@ -23,13 +23,16 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from returns_table import ENV_IDS, policy_actor
 
 from microg_env.experiments.comparison import TEST_SEED
 from microg_env.interface import SENSOR_SETS, gated_actions
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "training"))  # a user tool the probes share
+from returns_table import ENV_IDS, policy_actor
 
 #: The phases of an episode, in order.
 PHASES = ("before the contact", "first contact", "after it")

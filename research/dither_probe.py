@@ -13,7 +13,7 @@ and not a numerical one. For ``sac`` it also prints how often the policy's actio
 between decisions before touchdown, and its mean component in phase with ``adaptive-dither``'s
 square wave (one sign per 5 ms decision, + first; that square wave is 0.02 of the residual).
 
-Run: ``python training/dither_probe.py [--amplitudes 0.02,0.05,0.1,0.3,sac] [--seeds 13]
+Run: ``python research/dither_probe.py [--amplitudes 0.02,0.05,0.1,0.3,sac] [--seeds 13]
 [--sensors extended] [--off friction] [--physics-step-us 100] [--policy FOLDER]``.
 """
 

@@ -8,7 +8,7 @@ the entropy coefficient where training left it. A probe, not a recipe: docs/cont
 ("Training on both rigs") reports seeds 0 and 1 with ``--set sensor_set=mixed`` and without
 (both undo the shipped policy: without its replay buffer, fine-tuning is no test of the rig).
 
-Run: ``python training/finetune_probe.py [--policy residual-sac-gated] [--set KEY=VALUE]
+Run: ``python research/finetune_probe.py [--policy residual-sac-gated] [--set KEY=VALUE]
 [--timesteps 20000] [--seed 0] [--episodes 40]``.
 """
 

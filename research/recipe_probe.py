@@ -19,7 +19,7 @@ a zero weight on a blind entry) as a policy folder that ``microg compare --contr
 runs; a stacked policy needs a history ``PolicyController`` does not keep. ``--seeds 0
 --held-out-seeds 0`` skips the returns (docs/controllers.md, "Probes of the recipe").
 
-Run: ``python training/recipe_probe.py [--algo ppo|sac] [--stack 1] [--privileged] [--blind NAMES] --seed 0
+Run: ``python research/recipe_probe.py [--algo ppo|sac] [--stack 1] [--privileged] [--blind NAMES] --seed 0
 [--timesteps N] [--seeds 100] [--held-out-seeds 13] [--scenarios training,heavy-second,...]
 [--out FOLDER]``.
 """
@@ -36,7 +36,6 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch
-from returns_table import episode_return, make_env
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.vec_env import VecEnvWrapper
@@ -50,6 +49,9 @@ from microg_env.learning import hyperparams
 from microg_env.learning.export import actor_layers
 from microg_env.learning.vec_env import BatchedVecEnv
 from microg_env.scenarios import HELD_OUT
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "training"))  # a user tool the probes share
+from returns_table import episode_return, make_env
 
 ENV_ID = "MicroGravityLanding-Residual-v3"
 #: Where plant_model holds the cogging's phase (the critic gets its cosine and sine).
@@ -238,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.algo == "sac" and args.stack != 1:
         parser.error(
             "--stack with --algo sac: SAC's replay buffer keeps VecNormalize's unstacked observations here; "
-            "training/sac_probes.py --stack stacks under VecNormalize"
+            "research/sac_probes.py --stack stacks under VecNormalize"
         )
     if args.privileged and args.stack != 1:
         parser.error("--privileged masks one observation's privileged entries: --stack 1")
@@ -253,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
     change = f"{args.algo}, stack {args.stack}, privileged {args.privileged}, blind {names or 'none'}"
     print(f"{change}, seed {args.seed}: {timesteps} steps in {wall:.0f} s", flush=True)
     if args.out is not None:
-        command = "python training/recipe_probe.py " + " ".join(argv if argv is not None else sys.argv[1:])
+        command = "python research/recipe_probe.py " + " ".join(argv if argv is not None else sys.argv[1:])
         card = {
             "env_id": ENV_ID,
             "env_kwargs": gym.spec(ENV_ID).kwargs,

@@ -10,7 +10,7 @@ runs the default arguments on ``docs/comparison-held-out-extended`` and ``-paper
 ``--edges 0.25,0.5,1`` on ``docs/comparison``. Episodes either controller left without a value
 (a run that ended early) are counted and left out.
 
-Run: ``python training/gain_by_base_error.py RESULT/comparison.json [--controller residual-sac-gated]
+Run: ``python research/gain_by_base_error.py RESULT/comparison.json [--controller residual-sac-gated]
 [--reference adaptive-dither] [--quantity collision_excursion_m] [--edges 0.5,1,2,4]``.
 """
 
