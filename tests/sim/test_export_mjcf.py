@@ -1,5 +1,7 @@
 """``microg export-mjcf``: the exported model's pad is the rig's pad for what the foot carries at home."""
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pytest
@@ -38,3 +40,31 @@ def test_a_template_over_the_size_cap_or_not_a_regular_file_is_refused(tmp_path)
         stream.truncate(MAX_TEMPLATE_BYTES + 1)  # sparse: no disk used
     with pytest.raises(ValueError, match=r"xml_file .*huge\.xml.* at most \d+ bytes"):
         MicroGravityLandingEnv(xml_file=str(huge))
+
+
+def _fields(model: mujoco.MjModel) -> dict[str, np.ndarray]:
+    """Every numeric array of a compiled model (its names are in ``names``)."""
+    fields = {}
+    for name in dir(model):
+        value = getattr(model, name, None)
+        if isinstance(value, np.ndarray) and value.dtype.kind in "fiub":
+            fields[name] = value
+    return fields
+
+
+def test_the_repositorys_mjcf_is_export_mjcfs_output_for_the_paper_s_rig(tmp_path):
+    """mjcf/scene.xml (the repository's resolved rig, for MuJoCo's viewer) is what
+    ``microg export-mjcf`` writes for the paper's rig: the same elements, names and every numeric
+    field to MJCF's six digits. Regenerate it with ``microg export-mjcf mjcf/scene.xml``."""
+    shipped = Path(__file__).resolve().parents[2] / "mjcf" / "scene.xml"
+    exported = tmp_path / "scene.xml"
+    assert main(["export-mjcf", str(exported)]) == 0
+    ours, theirs = mujoco.MjModel.from_xml_path(str(shipped)), mujoco.MjModel.from_xml_path(str(exported))
+    assert (ours.nbody, ours.njnt, ours.nu, ours.ntendon, ours.nsensor, ours.nkey) == (3, 2, 2, 1, 5, 1)
+    assert ours.names == theirs.names
+    ours_fields, theirs_fields = _fields(ours), _fields(theirs)
+    assert ours_fields.keys() == theirs_fields.keys()
+    for name, value in ours_fields.items():
+        np.testing.assert_allclose(value, theirs_fields[name], rtol=1e-5, atol=1e-12, err_msg=name)
+    assert ours.geom_solref[ours.geom("pad").id, 0] < 0  # the computed pad contact, not MuJoCo's default
+    assert ours.jnt_stiffness[ours.joint("qzs").id] == RigParams().qzs.residual_stiffness_n_per_m
