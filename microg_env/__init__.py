@@ -148,7 +148,7 @@ _register(
 # step (0.89 a x 3 um for an action a through v5's gate). Trained so (the recipe of
 # `residual-sac-setpoint`), SAC no longer failed on the paper's rig (one seed) and four of five
 # seeds came within 6 % of the dither on the nominal plant, where every v5 seed lost 19-72 %
-# (docs/controllers.md, "The gate's step"). A zero action is still exactly `adaptive-dither`: v5's
+# (docs/research-log.md, "The gate's step"). A zero action is still exactly `adaptive-dither`: v5's
 # reward_threshold.
 _register(
     "MicroGravityLanding-Residual-v6",

@@ -75,7 +75,7 @@ RESIDUAL_HIGHPASS_HZ = 2.0
 #: stages in cascade), a steadily changing one too. Through one stage an action ramping at r per
 #: second leaves a setpoint of r tau limit: v2's shipped policy ramped about 0.04 per second through
 #: each free fall (its observations drift as the lander falls) and held x +6 nm off on condition 1,
-#: with 0.0196 % of compensation error against adaptive's -0.0009 % (docs/controllers.md).
+#: with 0.0196 % of compensation error against adaptive's -0.0009 % (docs/research-log.md).
 RESIDUAL_HIGHPASS_ORDERS = (1, 2)  # the lowest and highest
 #: The corners a residual's high-pass may take, Hz (0: none; the drive's 100 Hz speed loop, above
 #: which nothing of the residual would pass that the drive follows).

@@ -1,5 +1,5 @@
 """Where the compensation error goes: ``adaptive`` with a square wave fed through the learned
-residual's own path, and the shipped SAC residual, on the held-out episodes of docs/controllers.md.
+residual's own path, and the shipped SAC residual, on the held-out episodes of docs/research-log.md.
 
 Each candidate is ``adaptive`` with a residual that alternates +-A (a share of the residual's
 +-3 um) every decision (5 ms), through v4's twice high-passed setpoint, the square wave the SAC

@@ -4,7 +4,7 @@
 rigs), then the validation cost of ``microg train`` (``analysis.summary.selection_cost`` on the
 validation schedules, seeds from 500) on each rig for the base controller alone, the shipped
 policy and the fine-tuned one. The replay buffer starts empty (the shipped folder keeps none) and
-the entropy coefficient where training left it. A probe, not a recipe: docs/controllers.md
+the entropy coefficient where training left it. A probe, not a recipe: docs/research-log.md
 ("Training on both rigs") reports seeds 0 and 1 with ``--set sensor_set=mixed`` and without
 (both undo the shipped policy: without its replay buffer, fine-tuning is no test of the rig).
 

@@ -5,7 +5,7 @@ A residual policy is trained on plants drawn around the nominal one, and its bas
 leaves some of them a large excursion and others a small one; a residual that cannot tell them
 apart adds the same correction to both. Binning the paired episodes of a ``microg compare`` result
 by the reference's own excursion shows it: the ratio (controller / reference, of the bin's means)
-and the share of episodes the controller wins, per bin. docs/controllers.md's "The nominal plant"
+and the share of episodes the controller wins, per bin. docs/research-log.md's "The nominal plant"
 runs the default arguments on ``docs/comparison-held-out-extended`` and ``-paper``, and
 ``--edges 0.25,0.5,1`` on ``docs/comparison``. Episodes either controller left without a value
 (a run that ended early) are counted and left out.

@@ -5,7 +5,7 @@ episode's true plant. Here a feed-forward is told only some fields (the cogging;
 motor's friction law; the cogging and the speed loop's gains; the lander's mass, the flexible unit's
 stiffness and the friction levels), on plants and drives drawn by ``DomainRandomization.full()``,
 and its mean x in free fall and at the collision is printed beside the feed-forward's and the
-oracle's. The "what knowing the plant is worth" numbers of docs/controllers.md come from the default arguments.
+oracle's. The "what knowing the plant is worth" numbers of docs/research-log.md come from the default arguments.
 
 Run: ``python research/partial_oracles.py [--condition 1] [--seeds 1000,1001,1002,1003,1004]``.
 """

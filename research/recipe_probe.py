@@ -17,7 +17,7 @@ A probe, not a recipe: ``microg train`` does not take these options. With ``--st
 is deployable as it is, and ``--out FOLDER`` exports it (the actor's weights on the observation,
 a zero weight on a blind entry) as a policy folder that ``microg compare --controllers FOLDER``
 runs; a stacked policy needs a history ``PolicyController`` does not keep. ``--seeds 0
---held-out-seeds 0`` skips the returns (docs/controllers.md, "Probes of the recipe").
+--held-out-seeds 0`` skips the returns (docs/research-log.md, "Probes of the recipe").
 
 Run: ``python research/recipe_probe.py [--algo ppo|sac] [--stack 1] [--privileged] [--blind NAMES] --seed 0
 [--timesteps N] [--seeds 100] [--held-out-seeds 13] [--scenarios training,heavy-second,...]

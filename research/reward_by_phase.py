@@ -5,7 +5,7 @@ high-pass as a step with ``residual_gate_on="action"``): means over the seeds ±
 
 The reward scores x in decades every control period (docs/environment.md, "Rewards"), so a
 residual that lowers the collision's peak but raises x where x is small can earn nothing for it.
-docs/controllers.md's "Training on both rigs" runs the default arguments with ``--seeds 100``:
+docs/research-log.md's "Training on both rigs" runs the default arguments with ``--seeds 100``:
 the shipped ``residual-sac-gated`` on its task's own draws (seeds from 1000), on each sensor set.
 ``--reward-scale-m`` scores x from another x0 than the id's (10 nm). Phases and the peak are
 read at each step's last control period (every ``decision_period``-th): the first contact from the

@@ -16,7 +16,7 @@ alone first. The changes:
   an episode pays K per micrometre of that peak.
 - ``--set KEY=VALUE``: environment keyword changes (``sensor_set=paper``: train on the paper's rig).
 
-A probe, not a recipe: ``microg train`` does not take these options. docs/controllers.md ("The
+A probe, not a recipe: ``microg train`` does not take these options. docs/research-log.md ("The
 gate's step") reports seed 6 of each.
 
 Run: ``python research/sac_probes.py [--stack N | --privileged] [--peak-weight K] [--set KEY=VALUE]

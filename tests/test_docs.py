@@ -2,6 +2,7 @@
 page missing from the nav), and the README stays short and links only to files that exist."""
 
 import importlib
+import importlib.util
 import os
 import re
 import subprocess
@@ -31,7 +32,7 @@ def test_the_docs_site_builds_strictly(tmp_path):
 
 def test_the_readme_is_a_short_front_door_whose_links_resolve():
     text = (REPO / "README.md").read_text(encoding="utf-8")
-    assert len(text.splitlines()) <= 150
+    assert len(text.split()) <= 800
     targets = re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", text)
     local = [t for t in targets if not t.startswith(("http://", "https://"))]
     assert local, "the README links nothing"
@@ -59,3 +60,18 @@ def test_every_name_the_docs_cite_exists():
         if found is None:
             missing.append(name)
     assert not missing, f"the docs cite names that do not exist: {missing}"
+
+
+def test_the_reference_pages_are_written_in_short_sentences():
+    """docs/sentence_lengths.py: median sentence at most 20 words, at most 10 % over 40, on the README,
+    environment.md, controllers.md, cli.md and studies.md; controllers.md a reference of at most 250
+    lines (its history is the research log's)."""
+    spec = importlib.util.spec_from_file_location("sentence_lengths", REPO / "docs" / "sentence_lengths.py")
+    sentence_lengths = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sentence_lengths)
+    for page in sentence_lengths.PAGES:
+        median, share, ok = sentence_lengths.report(REPO / page)
+        assert ok, f"{page}: median {median} words, {share:.0%} over {sentence_lengths.LONG_WORDS}"
+    assert len((REPO / "docs" / "controllers.md").read_text(encoding="utf-8").splitlines()) <= 250
+    long_prose = "One claim. " * 5 + " ".join(["Then", *["word"] * 44]) + ". See [a link](x.md), `code`."
+    assert sentence_lengths.lengths_of(long_prose) == [2, 2, 2, 2, 2, 45, 4]  # the measure can fail a page

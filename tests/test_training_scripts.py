@@ -29,7 +29,7 @@ def test_training_script_runs(name, args, expected, monkeypatch, capsys):
 
 @pytest.mark.slow
 def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(monkeypatch, tmp_path, capsys):
-    """The seed selection of docs/controllers.md, on the shipped v3 policy and 40 episodes: the
+    """The seed selection of docs/research-log.md, on the shipped v3 policy and 40 episodes: the
     selection cost (mean excursion), the paired ratio to the zero residual, the worst excursion
     beside it; runs of two tasks, and counts of episodes that would reach no seed or a test seed, are refused."""
     import shutil

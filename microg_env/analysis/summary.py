@@ -53,7 +53,7 @@ def selection_cost(runs: Iterable[RunMetrics]) -> float:
     """The cost learned policies are selected by (training's best model, the shipped seed):
     :func:`control_cost` with the mean excursion at the collision in place of the worst, the
     statistic ``microg compare`` reports (the worst of a few dozen episodes is one draw's extreme;
-    docs/controllers.md shows it choosing seeds out of their held-out order)."""
+    docs/research-log.md shows it choosing seeds out of their held-out order)."""
     return _cost(runs, np.mean)
 
 

@@ -23,6 +23,7 @@ from microg_env.experiments.comparison import MAX_SEEDS, MAX_WORKERS, TEST_SEED
 from microg_env.imperfections import PRESETS
 from microg_env.learning.hyperparams import ALGORITHMS, CONTRIB_ALGORITHMS, MAX_ENVS
 from microg_env.learning.train import MAX_EVAL_EPISODES, TRAIN_EXTRA, TrainSettings
+from microg_env.scenarios import comparison_scenarios
 from microg_env.validate import shown
 
 #: ``microg train``'s options that set a run (``args.yml``), by the TrainSettings field they fill.
@@ -109,7 +110,6 @@ def _label(text: str) -> tuple[str, str]:
 def _cmd_compare(args: argparse.Namespace) -> int:
     from microg_env.controllers.registry import check_controller_name
     from microg_env.experiments import comparison, comparison_report
-    from microg_env.scenarios import comparison_scenarios
 
     controllers = args.controllers or list(CONTROLLER_NAMES)
     for name in controllers:
@@ -233,7 +233,7 @@ def add_commands(commands) -> None:
         "--scenarios",
         type=comma_list,
         metavar="A,B,...",
-        help="condition-1, condition-2, condition-3, heavy-second, light-long (default: all)",
+        help=f"{', '.join(comparison_scenarios())} (default: all)",
     )
     compare.add_argument(
         "--seeds", type=count(MAX_SEEDS), default=5, metavar="N", help="seeds per scenario (default 5)"

@@ -181,7 +181,7 @@ def test_privileged_observation_follows_the_episode(recipe_probe):
 
 
 def test_the_dither_probe_recipe_is_the_packaged_sac_recipe_on_the_dithered_base():
-    """training/sac_on_dither.yml (docs/controllers.md's SAC on `adaptive-dither`) differs from the
+    """research/sac_on_dither.yml (docs/research-log.md's SAC on `adaptive-dither`) differs from the
     packaged v4 SAC recipe in its base controller only."""
     from microg_env.learning import hyperparams
 

@@ -16,9 +16,9 @@ from microg_env.experiments.comparison_report import COMPARISON_FILES, render_ma
 from microg_env.interface import OBSERVATION_INDEX, SENSOR_SETS
 from microg_env.learning.hyperparams import load as load_hyperparams
 
-#: The training seed of the shipped residual-sac-gated (docs/controllers.md: the best of five).
+#: The training seed of the shipped residual-sac-gated (docs/research-log.md: the best of five).
 GATED_SEED = 6
-#: The training seed of the shipped residual-sac-setpoint (docs/controllers.md: the best of five).
+#: The training seed of the shipped residual-sac-setpoint (docs/research-log.md: the best of five).
 SETPOINT_SEED = 5
 REPO = Path(__file__).resolve().parents[2]
 
@@ -218,7 +218,7 @@ def _check_costs_by_the_mean(folder) -> None:
 def test_the_sac_policy_shipped_for_v4_records_its_training():
     """residual-sac-adaptive: the best of five seeds of sac.yml's recipe on
     MicroGravityLanding-Residual-v4 by the control cost on 40 validation episodes
-    (training/select_seed.py; docs/controllers.md gives all five), deployed blind to the absolute
+    (training/select_seed.py; docs/research-log.md gives all five), deployed blind to the absolute
     positions, trained within 30 minutes."""
     folder = shipped_policy_folder("residual-sac-adaptive")
     card = policy_card(folder)
@@ -236,7 +236,7 @@ def test_the_sac_policy_shipped_for_v4_records_its_training():
 def test_the_gated_policy_shipped_for_v5_records_its_training():
     """residual-sac-gated: the best of five seeds of sac.yml's recipe on
     MicroGravityLanding-Residual-v5 by the selection cost on 200 validation episodes
-    (training/select_seed.py; docs/controllers.md gives all five), each run evaluated every 2e4
+    (training/select_seed.py; docs/research-log.md gives all five), each run evaluated every 2e4
     steps on 40 episodes, deployed gated to the contact on `adaptive-dither` and reading the
     paper's sensors; trained within 30 minutes."""
     folder = shipped_policy_folder("residual-sac-gated")
