@@ -31,7 +31,7 @@ from microg_env.envs.vector import MicroGravityLandingVectorEnv
 
 def single_env_rate(periods: int, repeats: int) -> float:
     env = MicroGravityLandingEnv(condition=2)
-    controller = make_controller("pid", env.control_period_s)
+    controller = make_controller("pid", env.settings.control_period_s)
     observation, _ = env.reset(seed=0)
 
     def run() -> None:
@@ -39,15 +39,15 @@ def single_env_rate(periods: int, repeats: int) -> float:
         for _ in range(periods):
             observation = env.step(controller(observation))[0]
 
-    return periods * env.frame_skip / median_seconds(run, repeats)
+    return periods * env.settings.frame_skip / median_seconds(run, repeats)
 
 
 def vector_rates(size: int, periods: int, repeats: int) -> tuple[float, float, float]:
     """Median vector env and raw Batch.step rates and the median of their ratios, timed in turn."""
     env = MicroGravityLandingVectorEnv(size, condition=2)
-    controller = make_controller("pid", env.core.control_period_s)
+    controller = make_controller("pid", env.core.settings.control_period_s)
     observations, _ = env.reset(seed=0)
-    frame_skip, batch = env.core.frame_skip, env.core.physics.batch
+    frame_skip, batch = env.core.settings.frame_skip, env.core.physics.batch
     steps = size * periods * frame_skip
     vector, raw = [], []
     for _ in range(repeats):

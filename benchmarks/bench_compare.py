@@ -39,7 +39,7 @@ def physics_floor(controllers: int, seeds: int, scenarios: list[str], duration_s
         env.reset(seed=0)
         duration = condition(number).duration_s if duration_s is None else duration_s
         start = time.perf_counter()
-        env.core.physics.batch.step(nstep=round(window_s / env.core.physics_step_s))
+        env.core.physics.batch.step(nstep=round(window_s / env.core.settings.physics_step_s))
         total += (time.perf_counter() - start) * duration / window_s
         env.close()
     return total

@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=30.0, help="simulated time per run (default 30 s)")
     args = parser.parse_args(argv)
     env = MicroGravityLandingEnv(condition=1)
-    controller = make_controller("pid", env.control_period_s)
+    controller = make_controller("pid", env.settings.control_period_s)
     baseline = median_seconds(lambda: run_episode(env, controller, seed=0, duration_s=args.duration), args.repeats)
     with tempfile.TemporaryDirectory() as folder:
         out = str(Path(folder) / "reproduction")

@@ -44,7 +44,7 @@ def replay_inputs(env: MicroGravityLandingEnv, controller, seed: int) -> tuple[l
         )
 
     run_episode(env, controller, seed=seed, on_step=record)
-    return inputs[1:], env.frame_skip  # the first is the reset's
+    return inputs[1:], env.settings.frame_skip  # the first is the reset's
 
 
 def bare(env: MicroGravityLandingEnv, inputs: list, frame_skip: int) -> None:
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'controller':<14}{'episode [s]':>13}{'bare [s]':>10}{'bare/episode':>14}{'steps/s':>10}")
     for name in args.controllers.split(","):
         env = MicroGravityLandingEnv(condition=args.condition)
-        controller = make_controller(name, env.control_period_s)
+        controller = make_controller(name, env.settings.control_period_s)
         inputs, frame_skip = replay_inputs(env, controller, seed=0)
         episodes, floors = [], []
         for _ in range(args.repeats):

@@ -56,7 +56,7 @@ def run(controller: str, condition: int, physics_step_s: float, options: argpars
         condition=condition, physics_step_s=physics_step_s, params=params, imperfections=imperfections
     )
     env.unwrapped.rig.model.opt.integrator = INTEGRATORS[options.integrator]
-    controller = make_controller(controller, env.control_period_s, params)
+    controller = make_controller(controller, env.settings.control_period_s, params)
     return run_with_metrics(env, controller, seed=0, duration_s=options.duration)[2]
 
 

@@ -36,8 +36,75 @@ from microg_env.validate import FieldError
 
 
 @dataclass(frozen=True)
-class TaskSettings:
-    """The task's settings, checked and normalised when made: ``scenario_sampler``,
+class ActingSettings:
+    """How a policy acts on the rig, one record checked once when made: what its action means (the
+    drive's speed command, or a setpoint for x that a classical ``base_controller`` holds, scaled to
+    ``residual_limit_m``), how often it acts (every ``decision_period`` control periods), how the
+    residual is high-passed (a corner and one or two stages) and gated (acting only while the foot
+    reads at most ``residual_gate_m`` high, the gate on the action or the setpoint), and the
+    observation entries it reads as 0. The environment (:class:`TaskSettings`), the policy loader
+    and the policy cards read it; its fields are the cards' :data:`ACTING_KEYS`."""
+
+    action_mode: str = "speed"
+    base_controller: str = "pid"
+    decision_period: int = 1
+    residual_limit_m: float = RESIDUAL_LIMIT_M
+    residual_highpass_hz: float = 0.0
+    residual_highpass_order: int = 1
+    residual_gate_m: float | None = None
+    residual_gate_on: str = "action"
+    hidden_observations: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        def put(name: str, value: Any) -> None:
+            object.__setattr__(self, name, value)
+
+        put("hidden_observations", hidden_entries(self.hidden_observations))
+        put("decision_period", validate.integer("decision_period", self.decision_period, 1, 1000))
+        validate.choice("action_mode", self.action_mode, ACTION_MODES)
+        validate.choice("base_controller", self.base_controller, BASELINES)
+        put("residual_limit_m", validate.positive("residual_limit_m", self.residual_limit_m, "m", 1e-3))
+        corner = validate.between("residual_highpass_hz", self.residual_highpass_hz, *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
+        put("residual_highpass_hz", corner)
+        put("residual_highpass_order", highpass_order(self.residual_highpass_order))
+        put("residual_gate_m", residual_gate(self.residual_gate_m))
+        put("residual_gate_on", residual_gate_point(self.residual_gate_on))
+        if self.residual_gate_on != "action" and self.residual_gate_m is None:
+            raise FieldError(
+                f"residual_gate_on {self.residual_gate_on!r}: there is no gate to place (residual_gate_m is None)",
+                "residual_gate_on",
+            )
+        if self.action_mode != "residual":  # a speed action has no base, and no residual to scale, filter or gate
+            for option in fields(ActingSettings):
+                residual = option.name.startswith("residual_") or option.name == "base_controller"
+                if residual and getattr(self, option.name) != option.default:
+                    raise FieldError(
+                        f"{option.name} {getattr(self, option.name)!r}: only action_mode='residual' has a base "
+                        f"controller and a residual (action_mode is {self.action_mode!r})",
+                        option.name,
+                    )
+        if self.residual_highpass_order != 1 and self.residual_highpass_hz == 0.0:
+            raise FieldError(
+                f"residual_highpass_order {self.residual_highpass_order!r}: there is no high-pass to cascade "
+                "(residual_highpass_hz is 0)",
+                "residual_highpass_order",
+            )
+
+    @classmethod
+    def of(cls, settings: Mapping[str, Any]) -> ActingSettings:
+        """The acting settings among ``settings`` (a card's env_kwargs, a task's keywords), those left
+        out at their defaults; the other keys are not read."""
+        return cls(**{name: settings[name] for name in ACTING_KEYS if name in settings})
+
+
+#: The settings that say how a policy acts: :class:`ActingSettings`' fields.
+ACTING_KEYS = tuple(option.name for option in fields(ActingSettings))
+
+
+@dataclass(frozen=True)
+class TaskSettings(ActingSettings):
+    """The task's settings, checked and normalised when made (how a policy acts, the
+    :class:`ActingSettings` it extends, among them): ``scenario_sampler``,
     ``imperfections`` and ``domain_randomization`` become their records (a name, a mapping or
     True as the environment's keywords accept), ``params`` a :class:`RigParams`; an invalid value
     raises a :class:`~microg_env.validate.FieldError` naming it."""
@@ -47,18 +114,9 @@ class TaskSettings:
     scenario_sampler: ScenarioSampler | str | Mapping | None = None
     control_period_s: float = CONTROL_PERIOD_S
     physics_step_s: float = PHYSICS_STEP_S
-    decision_period: int = 1
-    action_mode: str = "speed"
-    base_controller: str = "pid"
-    residual_limit_m: float = RESIDUAL_LIMIT_M
-    residual_highpass_hz: float = 0.0
-    residual_highpass_order: int = 1
-    residual_gate_m: float | None = None
-    residual_gate_on: str = "action"
     imperfections: Imperfections | Mapping | None = None
     domain_randomization: DomainRandomization | Mapping | bool | str | None = None
     sensor_set: str = "extended"
-    hidden_observations: tuple[str, ...] = ()
     params: RigParams | None = None
     xml_file: str | None = None
     reward_scale_m: float = 1e-8
@@ -83,42 +141,13 @@ class TaskSettings:
         put("imperfections", _imperfections(self.imperfections))
         put("domain_randomization", _randomization(self.domain_randomization))
         validate.choice("sensor_set", self.sensor_set, (*SENSOR_SETS, MIXED_SENSORS))
-        put("hidden_observations", hidden_entries(self.hidden_observations))
         put("params", RigParams() if self.params is None else self.params)
         validate.instance("params", self.params, RigParams)
         missing = SENSOR_SETS.get(self.sensor_set, ())  # mixed: each episode draws a set
         check_parameters_used(self.params, self.imperfections, self.sensor_set, missing, "params")
         put("physics_step_s", check_physics_step(self.physics_step_s))
         put("control_period_s", check_control_period(self.control_period_s, self.physics_step_s))
-        put("decision_period", validate.integer("decision_period", self.decision_period, 1, 1000))
-        validate.choice("action_mode", self.action_mode, ACTION_MODES)
-        validate.choice("base_controller", self.base_controller, BASELINES)
-        put("residual_limit_m", validate.positive("residual_limit_m", self.residual_limit_m, "m", 1e-3))
-        corner = validate.between("residual_highpass_hz", self.residual_highpass_hz, *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
-        put("residual_highpass_hz", corner)
-        put("residual_highpass_order", highpass_order(self.residual_highpass_order))
-        put("residual_gate_m", residual_gate(self.residual_gate_m))
-        put("residual_gate_on", residual_gate_point(self.residual_gate_on))
-        if self.residual_gate_on != "action" and self.residual_gate_m is None:
-            raise FieldError(
-                f"residual_gate_on {self.residual_gate_on!r}: there is no gate to place (residual_gate_m is None)",
-                "residual_gate_on",
-            )
-        if self.action_mode != "residual":  # a speed action has no base, and no residual to scale, filter or gate
-            for option in fields(self):
-                residual = option.name.startswith("residual_") or option.name == "base_controller"
-                if residual and getattr(self, option.name) != option.default:
-                    raise FieldError(
-                        f"{option.name} {getattr(self, option.name)!r}: only action_mode='residual' has a base "
-                        f"controller and a residual (action_mode is {self.action_mode!r})",
-                        option.name,
-                    )
-        if self.residual_highpass_order != 1 and self.residual_highpass_hz == 0.0:
-            raise FieldError(
-                f"residual_highpass_order {self.residual_highpass_order!r}: there is no high-pass to cascade "
-                "(residual_highpass_hz is 0)",
-                "residual_highpass_order",
-            )
+        super().__post_init__()  # how a policy acts
         put("reward_scale_m", validate.between("reward_scale_m", self.reward_scale_m, 1e-12, 1e-3, "m"))
         put("reward_descent_weight", validate.between("reward_descent_weight", self.reward_descent_weight, 0.0, 1.0))
         scale = validate.between("reward_descent_scale_m_s", self.reward_descent_scale_m_s, 1e-12, 1e-3, "m/s")
@@ -141,6 +170,11 @@ class TaskSettings:
             if path.suffix.lower() != ".xml" or not path.is_file():
                 raise FieldError(f"xml_file {str(self.xml_file)!r} is not an .xml file", "xml_file")
             put("xml_file", str(self.xml_file))
+
+    @property
+    def acting(self) -> ActingSettings:
+        """How a policy acts in this task: its :class:`ActingSettings` alone (checked when this was made)."""
+        return ActingSettings.of({name: getattr(self, name) for name in ACTING_KEYS})
 
     @property
     def schedule(self) -> Scenario:

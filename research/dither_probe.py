@@ -83,7 +83,7 @@ def episode(
     )
     env = MicroGravityLandingEnv(**spec.env_kwargs())
     if candidate == "sac":
-        controller = make_controller(policy, env.control_period_s)
+        controller = make_controller(policy, env.settings.control_period_s)
         controller.policy = Recording(controller.policy)
     else:
         controller = deployed_controller(SquareWave(float(candidate)), TASK)
@@ -94,7 +94,7 @@ def episode(
     values = {name: float(QUANTITIES[name].of(metrics)) for name in SHOWN}
     if candidate == "sac":  # the share of its decisions before touchdown that flip the action's sign
         found = contacts(trajectory)
-        before = controller.policy.actions[: found[0].start // controller.decision_period if found else None]
+        before = controller.policy.actions[: found[0].start // controller.acting.decision_period if found else None]
         values["flips"] = float(np.mean(np.diff(np.sign(before)) != 0))
         actions = np.array(controller.policy.actions)
         values["in_phase"] = float(np.mean(actions * np.where(np.arange(actions.size) % 2 == 0, 1.0, -1.0)))

@@ -62,7 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     env = MicroGravityLandingEnv(condition=args.condition, domain_randomization=DomainRandomization.full())
     seeds = [int(text) for text in args.seeds.split(",")]
     for label, told in TOLD.items():
-        runs = [run_with_metrics(env, PartialOracle(env.control_period_s, told), s, args.duration)[2] for s in seeds]
+        runs = [
+            run_with_metrics(env, PartialOracle(env.settings.control_period_s, told), s, args.duration)[2]
+            for s in seeds
+        ]
         free = finite_mean(run.flexible_unit_excursion_free_fall_m for run in runs) * 1e6
         collision = finite_mean(run.flexible_unit_excursion_collision_m for run in runs) * 1e6
         print(f"{label:34s} x in free fall {free:.3f} um, at the collision {collision:.3f} um")

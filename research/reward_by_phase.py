@@ -70,7 +70,7 @@ def phase_returns(env: gym.Env, act, seed: int | None) -> tuple[np.ndarray, floa
     environment's gate passes (NaN without a gate, or if it never opens)."""
     obs, _ = env.reset(seed=seed)
     returns, contact, peak, done = np.zeros(len(PHASES)), FirstContact(1), 0.0, False
-    opening, gate_m = math.nan, env.unwrapped.residual_gate_m
+    opening, gate_m = math.nan, env.unwrapped.settings.residual_gate_m
     while not done:
         action = act(obs)
         gate_open = gate_m is not None and gated_actions(np.ones(1), env.unwrapped.core.observation[:1], gate_m)[0]

@@ -133,7 +133,7 @@ class ProbeController(PolicyController):
     history at its reset."""
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
-        self.policy.acting = ids[self._periods[ids] % self.decision_period == 0]  # count_periods' due rigs
+        self.policy.acting = ids[self._periods[ids] % self.acting.decision_period == 0]  # count_periods' due rigs
         return super().act(rows, ids)
 
     def reset(self, ids: np.ndarray | None = None) -> None:

@@ -35,7 +35,7 @@ def scores(make: Callable[[float], Controller], seeds: int, duration_s: float | 
     for number in (1, 2, 3):
         env = MicroGravityLandingEnv(condition=number, domain_randomization=DomainRandomization.full())
         for seed in range(VALIDATION_SEED, VALIDATION_SEED + seeds):
-            metrics = run_with_metrics(env, make(env.control_period_s), seed, duration_s)[2]
+            metrics = run_with_metrics(env, make(env.settings.control_period_s), seed, duration_s)[2]
             error = finite_mean(map(abs, metrics.compensation_error_pct))
             costs.append(error + metrics.flexible_unit_excursion_collision_m * 1e6 / 10)
             free_fall.append(metrics.flexible_unit_excursion_free_fall_m * 1e6)

@@ -28,7 +28,7 @@ print(f"observation {env.observation_space.shape}, action {env.action_space.shap
 # object with `reset()` and `__call__(observation, info) -> action` drives the rig the same way.
 from microg_env.controllers import make_controller
 
-controller = make_controller("pid", env.unwrapped.control_period_s)
+controller = make_controller("pid", env.unwrapped.settings.control_period_s)
 
 # %% One episode by hand, as with any Gymnasium environment.
 observation, info = env.reset(seed=0)

@@ -36,16 +36,11 @@ from microg_env.interface import (
     MAX_SPEED_M_S,
     OBSERVATION_INDEX,
     OBSERVATION_SCALES,
-    RESIDUAL_HIGHPASS_RANGE_HZ,
-    RESIDUAL_LIMIT_M,
     gated_setpoint,
-    hidden_entries,
     highpass_gain,
-    highpass_order,
-    residual_gate,
-    residual_gate_point,
 )
 from microg_env.params import CONTROL_PERIOD_S
+from microg_env.task import ActingSettings
 
 _erf = np.frompyfunc(math.erf, 1, 1)  # NumPy has no erf
 #: Activations of the exported networks, torch's with their default parameters: those a policy_kwargs may name
@@ -186,17 +181,16 @@ class MLPPolicy:
 
 class PolicyController(VectorController):
     """A learned policy (anything with ``predict(obs, deterministic=True)``: a stable-baselines3
-    model, an :class:`MLPPolicy`) as a controller of the speed-action environment.
+    model, an :class:`MLPPolicy`) as a controller, acting as its :class:`~microg_env.task.ActingSettings`
+    say, as the environment does.
 
-    The policy acts every ``decision_period`` control periods. With a ``base`` controller its
-    action is a setpoint for x, ``action * residual_limit_m``, that the base holds while commanding
-    the drive every period (the residual mode of ``MicroGravityLanding-v1``); without one the action
-    is the speed command, held. With ``residual_highpass_hz`` the setpoint is the action high-passed
-    (:func:`~microg_env.interface.residual_setpoint`, ``residual_highpass_order`` stages), and the
-    ``hidden_observations`` read 0 to the policy, and with ``residual_gate_m`` the action acts only
-    while the foot reads at most that high (:func:`~microg_env.interface.gated_setpoint`, the gate
-    on what ``residual_gate_on`` names), as the environment's. An all-zero residual is exactly the
-    base controller. Many rigs' observations go through the policy in one batch.
+    The policy acts every ``decision_period`` control periods. In ``action_mode="residual"`` its
+    action is a setpoint for x, ``action * residual_limit_m``, that the ``base`` controller holds
+    while commanding the drive every period; in speed mode the action is the speed command, held.
+    The setpoint is the action high-passed (:func:`~microg_env.interface.residual_setpoint`) and
+    gated (:func:`~microg_env.interface.gated_setpoint`) as the settings say, and the
+    ``hidden_observations`` read 0 to the policy. An all-zero residual is exactly the base
+    controller. Many rigs' observations go through the policy in one batch.
     """
 
     STATE: ClassVar[dict[str, float]] = {
@@ -211,33 +205,29 @@ class PolicyController(VectorController):
     def __init__(
         self,
         policy: Any,
-        deterministic: bool = True,
-        decision_period: int = 1,
+        acting: ActingSettings | None = None,
         base: SetpointController | None = None,
-        residual_limit_m: float = RESIDUAL_LIMIT_M,
-        residual_highpass_hz: float = 0.0,
         control_period_s: float = CONTROL_PERIOD_S,
-        residual_highpass_order: int = 1,
-        hidden_observations: tuple[str, ...] | list[str] = (),
-        residual_gate_m: float | None = None,
-        residual_gate_on: str = "action",
+        deterministic: bool = True,
     ) -> None:
+        acting = validate.instance("acting", ActingSettings() if acting is None else acting, ActingSettings)
+        if (base is not None) != (acting.action_mode == "residual"):
+            raise ValueError(
+                f"a policy of action_mode {acting.action_mode!r} acts {'on' if base is None else 'without'} a base "
+                f"controller, got base {type(base).__name__}"
+            )
         super().__init__(*(() if base is None else (base,)))
         self.policy = policy
+        self.acting = acting
         self.deterministic = deterministic
-        self.decision_period = validate.integer("decision_period", decision_period, 1, 1000)
         self.base = base
-        self.residual_limit_m = validate.positive("residual_limit_m", residual_limit_m, "m", 1e-3)
-        highpass_hz = validate.between("residual_highpass_hz", residual_highpass_hz, *RESIDUAL_HIGHPASS_RANGE_HZ, "Hz")
-        self._residual_gain = highpass_gain(highpass_hz, self.decision_period * control_period_s)
-        self._second_stage = highpass_order(residual_highpass_order) == 2
-        self._hidden = [OBSERVATION_INDEX[name] for name in hidden_entries(hidden_observations)]
-        self.residual_gate_m = residual_gate(residual_gate_m)
-        self.residual_gate_on = residual_gate_point(residual_gate_on)
+        self._residual_gain = highpass_gain(acting.residual_highpass_hz, acting.decision_period * control_period_s)
+        self._second_stage = acting.residual_highpass_order == 2
+        self._hidden = [OBSERVATION_INDEX[name] for name in acting.hidden_observations]
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         due = np.empty(ids.size, dtype=np.bool_)
-        if count_periods(ids, self._periods, self.decision_period, due):
+        if count_periods(ids, self._periods, self.acting.decision_period, due):
             acting = ids[due]
             seen = np.array(rows[due], dtype=np.float32)  # what the training environment showed
             seen[:, OBSERVATION_INDEX["previous_action"]] = self._action[acting]
@@ -252,9 +242,9 @@ class PolicyController(VectorController):
                     self._action[acting],
                     rows[due],
                     acting,
-                    self.residual_gate_m,
-                    self.residual_gate_on,
-                    self.residual_limit_m,
+                    self.acting.residual_gate_m,
+                    self.acting.residual_gate_on,
+                    self.acting.residual_limit_m,
                     self._residual_gain,
                     (self._filtered_action, self._setpoint_m, self._stage_m if self._second_stage else None),
                 )

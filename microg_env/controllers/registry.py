@@ -27,12 +27,11 @@ from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy, Po
 from microg_env.interface import (
     BASELINES,
     MIXED_SENSORS,
-    RESIDUAL_LIMIT_M,
     SENSOR_SETS,
     hidden_entries,
 )
-from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, RigParams
-from microg_env.task import TaskSettings
+from microg_env.params import CONTROL_PERIOD_RANGE_S, RigParams
+from microg_env.task import ACTING_KEYS, ActingSettings, TaskSettings
 from microg_env.validate import FieldError, fault
 
 #: The baselines built on the feed-forward (their feedback loop is ``pid``'s).
@@ -166,27 +165,12 @@ def _once_each(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return dict(pairs)
 
 
-#: The env_kwargs of a policy card that say how the deployed policy acts (:func:`_check_deployment`
-#: reads each, and the control period), so a policy is run only on the task it was trained on.
-ACTING_KEYS = (
-    "action_mode",
-    "base_controller",
-    "decision_period",
-    "residual_limit_m",
-    "residual_highpass_hz",
-    "residual_highpass_order",
-    "residual_gate_m",
-    "residual_gate_on",
-    "hidden_observations",
-)
-
-
 def _check_deployment(env: dict[str, Any]) -> None:
     """The env_kwargs of a card are the task's settings, read through the task's own check
     (:class:`~microg_env.task.TaskSettings`: each of its kind and range, and the combinations the
     environment refuses refused here too), so a policy is deployed only with settings it could have
     been trained with; the base controller a classical one (a policy on a policy is refused)."""
-    unknown = sorted(set(env) - set(_task_defaults()))
+    unknown = sorted(set(env) - set(TASK_DEFAULTS))
     if unknown:
         raise ValueError(f"{unknown[0]} is not a setting of the task (a keyword argument of MicroGravityLanding-v1)")
     try:
@@ -197,9 +181,8 @@ def _check_deployment(env: dict[str, Any]) -> None:
         raise ValueError(f"{fault(error)} (not a setting the task takes)") from None
 
 
-def _task_defaults() -> dict[str, Any]:
-    """The task's settings (the environment's keyword arguments) with their defaults."""
-    return {option.name: option.default for option in fields(TaskSettings)}
+#: The task's settings (the environment's keyword arguments) with their defaults.
+TASK_DEFAULTS = {option.name: option.default for option in fields(TaskSettings)}
 
 
 def _check_env_id(card: dict[str, Any]) -> None:
@@ -215,7 +198,7 @@ def _check_env_id(card: dict[str, Any]) -> None:
     ours = sorted(name for name, spec in gym.registry.items() if spec.entry_point == ENTRY_POINT)
     if not isinstance(env_id, str) or env_id not in ours:
         raise ValueError(f"env_id must be one of {', '.join(ours)}, got {validate.shown(env_id)}")
-    defaults, registered = _task_defaults(), gym.registry[env_id].kwargs
+    defaults, registered = TASK_DEFAULTS, gym.registry[env_id].kwargs
     for key in ACTING_KEYS:
         if key in registered and key not in env and registered[key] != defaults[key]:
             raise ValueError(
@@ -228,7 +211,7 @@ def deployed_hidden(env_kwargs: Mapping[str, Any]) -> tuple[str, ...]:
     """The observation entries a policy trained with ``env_kwargs`` reads as 0 when deployed: its
     ``hidden_observations`` and the sensors its training rig lacked (:data:`SENSOR_SETS`; none when
     trained on both, ``sensor_set="mixed"``), so that on any rig it sees what training showed it."""
-    trained = env_kwargs.get("sensor_set", "extended")
+    trained = env_kwargs.get("sensor_set", TASK_DEFAULTS["sensor_set"])
     lacked = () if trained == MIXED_SENSORS else SENSOR_SETS[trained]
     return tuple(dict.fromkeys((*hidden_entries(env_kwargs.get("hidden_observations", ())), *lacked)))
 
@@ -239,7 +222,7 @@ def check_sensor_set(name: str, env_kwargs: Mapping[str, Any], sensor_set: str) 
     there, as it never did. (A policy trained on both rigs met both; one that hides an entry reads
     0 there on every rig, :func:`deployed_hidden`.)"""
     validate.choice("sensor_set", sensor_set, (*SENSOR_SETS, MIXED_SENSORS))
-    trained = env_kwargs.get("sensor_set", "extended")
+    trained = env_kwargs.get("sensor_set", TASK_DEFAULTS["sensor_set"])
     if trained == MIXED_SENSORS:
         return
     shown_zero = set(deployed_hidden(env_kwargs))
@@ -285,7 +268,7 @@ def load_policy(
         )
     env = card["env_kwargs"]
     check_sensor_set(Path(folder).name, env, sensor_set)
-    trained_period = float(env.get("control_period_s", CONTROL_PERIOD_S))
+    trained_period = float(env.get("control_period_s", TASK_DEFAULTS["control_period_s"]))
     if abs(control_period_s - trained_period) > 1e-9:
         raise FieldError(
             f"control_period_s {control_period_s!r}: policy {Path(folder).name!r} was trained at "
@@ -296,26 +279,16 @@ def load_policy(
 
 
 def deployed_controller(
-    policy: Any, env_kwargs: dict[str, Any], controller: type[PolicyController] = PolicyController
+    policy: Any, env_kwargs: Mapping[str, Any], controller: type[PolicyController] = PolicyController
 ) -> PolicyController:
     """``policy``, trained in ``MicroGravityLanding-v1`` with ``env_kwargs``, as the controller it
-    is deployed as: a residual on its base controller, acting every decision period (a
-    ``controller``, :class:`PolicyController` or a subclass of it), shown what it was shown in
-    training (:func:`deployed_hidden`)."""
-    residual = env_kwargs.get("action_mode", "speed") == "residual"
-    period = float(env_kwargs.get("control_period_s", CONTROL_PERIOD_S))
-    return controller(
-        policy,
-        decision_period=int(env_kwargs.get("decision_period", 1)),
-        base=make_controller(env_kwargs.get("base_controller", "pid"), period) if residual else None,
-        residual_limit_m=float(env_kwargs.get("residual_limit_m", RESIDUAL_LIMIT_M)),
-        residual_highpass_hz=float(env_kwargs.get("residual_highpass_hz", 0.0)),
-        control_period_s=period,
-        residual_highpass_order=env_kwargs.get("residual_highpass_order", 1),
-        hidden_observations=deployed_hidden(env_kwargs),
-        residual_gate_m=env_kwargs.get("residual_gate_m"),
-        residual_gate_on=env_kwargs.get("residual_gate_on", "action"),
-    )
+    is deployed as (a ``controller``, :class:`PolicyController` or a subclass of it): acting as its
+    :class:`~microg_env.task.ActingSettings` say, on its base controller in residual mode, shown what
+    it was shown in training (:func:`deployed_hidden`)."""
+    acting = ActingSettings.of(env_kwargs)
+    period = float(env_kwargs.get("control_period_s", TASK_DEFAULTS["control_period_s"]))
+    base = make_controller(acting.base_controller, period) if acting.action_mode == "residual" else None
+    return controller(policy, replace(acting, hidden_observations=deployed_hidden(env_kwargs)), base, period)
 
 
 #: The files of a policy folder that define how it acts: what :func:`controller_digest` reads.

@@ -56,30 +56,6 @@ from microg_env.validate import FieldError
 STOP_MARGIN_M = 1e-4
 #: Clearance the start height keeps above the pad and above every load's switch height, m.
 START_CLEARANCE_M = 1e-3
-#: The settings a core (and each environment) shows as attributes, read from its TaskSettings.
-TASK_ATTRIBUTES = (
-    "scenario_sampler",
-    "imperfections",
-    "domain_randomization",
-    "sensor_set",
-    "hidden_observations",
-    "physics_step_s",
-    "control_period_s",
-    "frame_skip",
-    "decision_period",
-    "action_mode",
-    "base_controller",
-    "residual_limit_m",
-    "residual_highpass_hz",
-    "residual_highpass_order",
-    "residual_gate_m",
-    "residual_gate_on",
-    "reward_scale_m",
-    "reward_descent_weight",
-    "reward_descent_scale_m_s",
-    "reset_noise_scale",
-    "xml_file",
-)
 #: A rig's descent state (period.score_descent: window start s, velocity there, ideal acceleration,
 #: last velocity error, touched) before its first weight is placed: no window.
 NO_DESCENT = (np.inf, np.nan, 0.0, 0.0, 0.0)
@@ -157,28 +133,26 @@ class LandingCore:
                 validate.instance(f"scenarios[{i}]", each, Scenario)
         self.scenarios = scenarios if scenarios is not None else (settings.schedule,) * num_rigs
         self.scenario = self.scenarios[0]
-        for name in TASK_ATTRIBUTES:
-            setattr(self, name, getattr(settings, name))
         self.base_params = settings.params
         # the observation entries each sensor set lacks (True: they read 0), and each rig's episode's row
         self._missing_by_set = {
             name: np.isin(np.arange(len(SCALES)), [OBSERVATION_INDEX[entry] for entry in missing])
             for name, missing in SENSOR_SETS.items()
         }
-        self._sensors_drawn = self.sensor_set == MIXED_SENSORS
-        fixed = "extended" if self._sensors_drawn else self.sensor_set
+        self._sensors_drawn = self.settings.sensor_set == MIXED_SENSORS
+        fixed = "extended" if self._sensors_drawn else self.settings.sensor_set
         self._missing_by_rig = np.tile(self._missing_by_set[fixed], (num_rigs, 1))
         self._sensor_set_by_rig = np.full(num_rigs, fixed, dtype=object)  # each episode's, for info
         # a fixed set's columns (also the compiled PID loop's, which a mixed set does not run)
         self._missing = np.flatnonzero(self._missing_by_set[fixed])
-        self._hidden = np.array([OBSERVATION_INDEX[name] for name in self.hidden_observations], dtype=np.int64)
+        self._hidden = np.array([OBSERVATION_INDEX[name] for name in self.settings.hidden_observations], dtype=np.int64)
         for each in set(self.scenarios):
-            _check_reset_noise(self.reset_noise_scale, each)
+            _check_reset_noise(self.settings.reset_noise_scale, each)
 
         schedules = tuple(dict.fromkeys(self.scenarios))
-        nominal = [apply_imperfections(s.rig_params(self.base_params), self.imperfections) for s in schedules]
-        if self.scenario_sampler is not None:
-            schedules = self.scenario_sampler.extremes(nominal[0].lander.mass_kg, nominal[0].gravity_m_s2)
+        nominal = [apply_imperfections(s.rig_params(self.base_params), self.settings.imperfections) for s in schedules]
+        if self.settings.scenario_sampler is not None:
+            schedules = self.settings.scenario_sampler.extremes(nominal[0].lander.mass_kg, nominal[0].gravity_m_s2)
             nominal = nominal[:1] * len(schedules)
         for each, schedule in zip(nominal, schedules, strict=True):
             self._check_scenario_fits(each, schedule)
@@ -186,15 +160,17 @@ class LandingCore:
         self.rig: Rig = build_rig(
             nominal[0],
             most_loads.loads_kg,
-            xml_file=self.xml_file,
-            physics_step_s=self.physics_step_s,
-            ideal_drive=not self.imperfections.servo_lag,
+            xml_file=self.settings.xml_file,
+            physics_step_s=self.settings.physics_step_s,
+            ideal_drive=not self.settings.imperfections.servo_lag,
         )
         for each in nominal[1:]:
             self.rig.check_episode_params(each)  # one compiled model for every rig's schedule
         self.nominal_params = nominal[0]
         self.physics = BatchPhysics(self.rig.model, num_rigs, nthread) if batched else ModelPhysics(self.rig.model)
-        self.sensors = SensorModel(self.nominal_params, self.control_period_s, self.imperfections.sensor_noise)
+        self.sensors = SensorModel(
+            self.nominal_params, self.settings.control_period_s, self.settings.imperfections.sensor_noise
+        )
         self._noise = NoiseDraws(num_rigs)
         params = self.nominal_params
         self.x_limit_m = params.qzs.stroke_m / 2.0 - STOP_MARGIN_M
@@ -206,7 +182,9 @@ class LandingCore:
         self._accel_adr = int(model.sensor_adr[model.sensor("lander_accel").id]) + 2
         self._force_adr = int(model.sensor_adr[model.sensor("pad_force").id])
         self.base = (
-            make_controller(self.base_controller, self.control_period_s) if self.action_mode == "residual" else None
+            make_controller(self.settings.base_controller, self.settings.control_period_s)
+            if self.settings.action_mode == "residual"
+            else None
         )
 
         n = num_rigs
@@ -228,10 +206,12 @@ class LandingCore:
         self.base_command = np.zeros(n)  # m/s, the base controller's last command (residual mode)
         # The residual's high-pass (interface.residual_setpoint): its last input and output, and
         # its first stage's last output if it has two.
-        self._residual_gain = highpass_gain(self.residual_highpass_hz, self.decision_period * self.control_period_s)
+        self._residual_gain = highpass_gain(
+            self.settings.residual_highpass_hz, self.settings.decision_period * self.settings.control_period_s
+        )
         self.residual_action = np.zeros(n)
         self.residual_setpoint_m = np.zeros(n)
-        self.residual_stage_m = np.zeros(n) if self.residual_highpass_order == 2 else None
+        self.residual_stage_m = np.zeros(n) if self.settings.residual_highpass_order == 2 else None
         self.position_ref = np.zeros(n)  # the drive's interpolated position reference, motor rad
         self.drift_n_per_s = np.zeros(n)
         self.x_stiffness = np.zeros(n)
@@ -244,7 +224,9 @@ class LandingCore:
         self.reward = np.zeros(n)  # the last control period's reward (period.observe)
         self.descent = np.tile(NO_DESCENT, (n, 1))  # each rig's descent window (period.score_descent)
         self._positions = np.arange(n)
-        self._period_span_s = self.physics_step_s * self.frame_skip  # the drive's reference ramps this long
+        self._period_span_s = (
+            self.settings.physics_step_s * self.settings.frame_skip
+        )  # the drive's reference ramps this long
         self._no_field = np.zeros((0, 0, 0))  # the ideal drive has no slew limiter to set
         self._no_setpoint = np.zeros(0)  # no base controller: the state's setpoint is 0
         self._no_commands = np.zeros(0)  # no base controller: the drive takes the actions
@@ -256,54 +238,65 @@ class LandingCore:
     def _check_scenario_fits(self, params: RigParams, scenario: Scenario) -> None:
         """Reject, before any episode, a schedule the rig cannot run (named in the error)."""
         top = params.screw.range_m[1] - STOP_MARGIN_M - 0.01
-        if scenario.descent_height_m + self.reset_noise_scale > top:
-            noise = f" plus reset_noise_scale {self.reset_noise_scale!r} m" if self.reset_noise_scale else ""
+        if scenario.descent_height_m + self.settings.reset_noise_scale > top:
+            noise = (
+                f" plus reset_noise_scale {self.settings.reset_noise_scale!r} m"
+                if self.settings.reset_noise_scale
+                else ""
+            )
             raise FieldError(
                 f"Scenario.descent_height_m {scenario.descent_height_m!r} m{noise} is above the screw's reach "
                 f"({top:.3f} m)",
                 "Scenario.descent_height_m",
             )
-        steps = round(scenario.duration_s / self.control_period_s)
+        steps = round(scenario.duration_s / self.settings.control_period_s)
         if steps < 1:
             raise FieldError(
                 f"Scenario.duration_s {scenario.duration_s:g} s is shorter than one control period "
-                f"({self.control_period_s:g} s)",
+                f"({self.settings.control_period_s:g} s)",
                 "Scenario.duration_s",
             )
         if steps > MAX_CONTROL_STEPS:
             raise FieldError(
-                f"Scenario.duration_s {scenario.duration_s:g} s at control_period_s {self.control_period_s:g} s "
+                f"Scenario.duration_s {scenario.duration_s:g} s at control_period_s "
+                f"{self.settings.control_period_s:g} s "
                 f"is {steps} control steps, more than the {MAX_CONTROL_STEPS} one run may take",
                 "Scenario.duration_s",
                 "control_period_s",
             )
         g, mass, load = params.gravity_m_s2, params.lander.mass_kg, sum(scenario.loads_kg)
         validate_loads(scenario.loads_kg, mass)
-        highest = replace(scenario, descent_height_m=scenario.descent_height_m + self.reset_noise_scale)
+        highest = replace(scenario, descent_height_m=scenario.descent_height_m + self.settings.reset_noise_scale)
         speed = highest.impact_speed_m_s(mass, g)
-        check_pad(params, mass + load, speed, load * g, self.physics_step_s, scenario.name)
-        if self.domain_randomization is not None:
-            self.domain_randomization.check(params, highest, self.physics_step_s)
+        check_pad(params, mass + load, speed, load * g, self.settings.physics_step_s, scenario.name)
+        if self.settings.domain_randomization is not None:
+            self.settings.domain_randomization.check(params, highest, self.settings.physics_step_s)
 
     def draw_episode(self, rig: int, rng: np.random.Generator) -> Episode:
         """Rig ``rig``'s next episode: its rig, schedule, start height and balancer drift, drawn from ``rng``."""
         scenario = self.scenarios[rig]
-        params = apply_imperfections(scenario.rig_params(self.base_params), self.imperfections)
-        if self.scenario_sampler is not None:
-            scenario = self.scenario_sampler.sample(rng, self.base_params.lander.mass_kg, self.base_params.gravity_m_s2)
-        if self.domain_randomization is not None:
-            drawn, loads = self.domain_randomization.sample(
+        params = apply_imperfections(scenario.rig_params(self.base_params), self.settings.imperfections)
+        if self.settings.scenario_sampler is not None:
+            scenario = self.settings.scenario_sampler.sample(
+                rng, self.base_params.lander.mass_kg, self.base_params.gravity_m_s2
+            )
+        if self.settings.domain_randomization is not None:
+            drawn, loads = self.settings.domain_randomization.sample(
                 self.scenarios[rig].rig_params(self.base_params), scenario.loads_kg, rng
             )
-            params = apply_imperfections(drawn, self.imperfections)
+            params = apply_imperfections(drawn, self.settings.imperfections)
             steps = tuple(LoadStep(mass, step.height_m) for mass, step in zip(loads, scenario.loads, strict=True))
             scenario = replace(scenario, loads=steps)
         height = scenario.descent_height_m
-        if self.reset_noise_scale > 0:
-            height += rng.uniform(-self.reset_noise_scale, self.reset_noise_scale)
+        if self.settings.reset_noise_scale > 0:
+            height += rng.uniform(-self.settings.reset_noise_scale, self.settings.reset_noise_scale)
         drift = params.drift
-        rate = rng.uniform(-1.0, 1.0) * drift.max_temperature_rate_k_per_s if self.imperfections.balancer_drift else 0.0
-        sensors = self.sensor_set
+        rate = (
+            rng.uniform(-1.0, 1.0) * drift.max_temperature_rate_k_per_s
+            if self.settings.imperfections.balancer_drift
+            else 0.0
+        )
+        sensors = self.settings.sensor_set
         if self._sensors_drawn:  # from a child of ``rng``: what ``rng`` draws stays the fixed sets'
             sensors = tuple(SENSOR_SETS)[rng.spawn(1)[0].integers(len(SENSOR_SETS))]
         return Episode(params, scenario, height, rate, sensors)
@@ -333,7 +326,7 @@ class LandingCore:
                 unit.balancer_force_n * episode.drift_rate_k_per_s / episode.params.drift.gas_temperature_k
             )
             self.x_stiffness[i] = unit.x_stiffness_n_per_m
-            self.max_steps[i] = round(episode.scenario.duration_s / self.control_period_s)
+            self.max_steps[i] = round(episode.scenario.duration_s / self.settings.control_period_s)
             self.reference_weight_n[i] = episode.scenario.loads[0].mass_kg * episode.params.gravity_m_s2
             self.gravity[i] = episode.params.gravity_m_s2
             self.trim_height_m[i] = episode.height_m
@@ -387,7 +380,7 @@ class LandingCore:
             self.reference_weight_n[i] = reference * g
             if not self.descent[i, 4]:  # the stage's descent window: SETTLE_S on, until the pad is touched
                 ideal = ideal_descent_m_s2(reference, episode.params.lander.mass_kg, g)
-                self.descent[i, :3] = (self.steps[i] * self.control_period_s + SETTLE_S, np.nan, ideal)
+                self.descent[i, :3] = (self.steps[i] * self.settings.control_period_s + SETTLE_S, np.nan, ideal)
 
     # -- stepping ------------------------------------------------------------------------------
 
@@ -405,9 +398,9 @@ class LandingCore:
                 actions,
                 self.observation[ids],
                 ids,
-                self.residual_gate_m,
-                self.residual_gate_on,
-                self.residual_limit_m,
+                self.settings.residual_gate_m,
+                self.settings.residual_gate_on,
+                self.settings.residual_limit_m,
                 self._residual_gain,
                 (self.residual_action, self.residual_setpoint_m, self.residual_stage_m),
             )
@@ -415,7 +408,7 @@ class LandingCore:
         total, periods = np.zeros(n), np.zeros(n, dtype=np.int64)
         codes, truncated = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool)
         positions, rigs = self._positions[:n], ids  # the rigs still running and their places in ids
-        for _ in range(self.decision_period):
+        for _ in range(self.settings.decision_period):
             command = self._no_commands  # the drive takes the actions themselves
             if self.base is not None:
                 command = self.base(self.observation[rigs], ids=rigs)[:, 0].astype(np.float64) * MAX_SPEED_M_S
@@ -441,7 +434,7 @@ class LandingCore:
             type(controller) is PID
             and isinstance(self.physics, ModelPhysics)
             and self.base is None
-            and self.decision_period == 1
+            and self.settings.decision_period == 1
             and not self._hidden.size
             and not self._sensors_drawn
             and mj_step is not None
@@ -474,7 +467,7 @@ class LandingCore:
         model, data = self.physics.model._address, self.physics.data._address
         done = 0
         while done < count:
-            ran, why = period.pid_periods(count - done, model, data, self.frame_skip, *args, row + done)
+            ran, why = period.pid_periods(count - done, model, data, self.settings.frame_skip, *args, row + done)
             done += ran
             if why == period.NON_FINITE:
                 raise ValueError(f"action must be finite, got {float(actions[0])!r}")
@@ -499,7 +492,7 @@ class LandingCore:
         taking ``command_m_s`` (empty: the actions, as speeds) after the delay, if on; place the test
         weights that came due, and read the sensors; returns the rigs' termination codes."""
         period.drive(*self._drive_args(ids, positions, actions, command_m_s))
-        self.physics.step(ids, self.frame_skip)
+        self.physics.step(ids, self.settings.frame_skip)
         return self._observe(ids, rngs)
 
     def _drive_args(
@@ -511,10 +504,10 @@ class LandingCore:
         # the field looked up each time: a copy of the environment has its own model
         dynprm = self._no_field if ideal else physics.field("actuator_dynprm")
         return (
-            ids, positions, actions, self.previous_action, command_m_s, self.imperfections.control_delay,
+            ids, positions, actions, self.previous_action, command_m_s, self.settings.imperfections.control_delay,
             self.pending_command, self.command, self.steps, self.position_ref, self.drift_n_per_s, self._drift_dof,
             physics.qfrc_applied, physics.ctrl, dynprm, rig.servo, SLEW_PARAMETER, rig.gear, ideal, MAX_SPEED_M_S,
-            self.control_period_s, self._period_span_s,
+            self.settings.control_period_s, self._period_span_s,
         )  # fmt: skip
 
     def _observe(self, ids: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
@@ -544,16 +537,16 @@ class LandingCore:
     def _observe_args(self, ids: np.ndarray, codes: np.ndarray, height: np.ndarray) -> tuple:
         """:func:`~microg_env.envs.period.observe`'s arguments for rigs ``ids`` (``codes`` and
         ``height``: its outputs)."""
-        physics, rig, sensors, noise = self.physics, self.rig, self.sensors, self._noise
+        physics, rig, sensors, noise, task = self.physics, self.rig, self.sensors, self._noise, self.settings
         low, high = self._screw_limits
         return (
             ids, physics.qpos, physics.sensordata, rig.screw_qpos, rig.qzs_qpos, rig.motor_qpos, self._accel_adr,
             self._force_adr, self.gravity, sensors.noisy, sensors.noise, sensors.bias, sensors.steps, noise.block,
             noise.used, self.last_readings, self.fresh, self.accelerometer, self.placed_load_kg,
-            self.previous_action, self.base_command, SCALES, self.control_period_s, self.observation,
-            self.reward_x, self.reward_scale_m, self.x_limit_m, low, high, self._floor, codes, self.next_load,
+            self.previous_action, self.base_command, SCALES, task.control_period_s, self.observation,
+            self.reward_x, task.reward_scale_m, self.x_limit_m, low, high, self._floor, codes, self.next_load,
             self.load_count, self.switch_height_m, height, physics.qvel, rig.screw_dof, rig.qzs_dof, self.steps,
-            self.descent, self.reward_descent_weight, self.reward_descent_scale_m_s, DESCENT_LIMIT_M_S, self.reward,
+            self.descent, task.reward_descent_weight, task.reward_descent_scale_m_s, DESCENT_LIMIT_M_S, self.reward,
         )  # fmt: skip
 
     # -- what the rigs show ----------------------------------------------------------------------
@@ -577,7 +570,8 @@ class LandingCore:
         return (
             ids, physics.qpos, physics.qvel, physics.qacc, physics.sensordata, physics.actuator_force,
             physics.qfrc_applied, rig.screw_qpos, rig.qzs_qpos, rig.screw_dof, rig.qzs_dof, rig.servo,
-            self._force_adr, self._drift_dof == rig.qzs_dof, self.x_stiffness, self.steps, self.control_period_s,
+            self._force_adr, self._drift_dof == rig.qzs_dof, self.x_stiffness, self.steps,
+            self.settings.control_period_s,
             self.accelerometer, self.placed_load_kg, self.next_load, self.command, setpoint,
             self.reference_weight_n, self.reward_x, self.descent,
         )  # fmt: skip

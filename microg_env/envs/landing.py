@@ -11,7 +11,7 @@ import numpy as np
 from gymnasium.error import ResetNeeded
 
 from microg_env import validate
-from microg_env.envs.core import STATE_KEYS, TASK_ATTRIBUTES, TERMINATION_REASONS, LandingCore, check_actions
+from microg_env.envs.core import STATE_KEYS, TERMINATION_REASONS, LandingCore, check_actions
 from microg_env.envs.period import x_reward
 from microg_env.interface import (
     OBSERVATION_INDEX,
@@ -192,11 +192,10 @@ class MicroGravityLandingEnv(gym.Env):
         self.core = LandingCore(1, TaskSettings(**settings))
         core = self.core
         self.settings = core.settings
-        for name in (*TASK_ATTRIBUTES, "scenario", "base_params"):
-            setattr(self, name, getattr(core, name))
+        self.scenario, self.base_params = core.scenario, core.base_params
         self.rig = core.rig
         #: Simulated seconds one ``step`` advances: the control period times the decision period.
-        self.dt = self.control_period_s * self.decision_period
+        self.dt = self.settings.control_period_s * self.settings.decision_period
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dt)}  # frames play in real time
         self._human_every = max(1, round(1.0 / (60.0 * self.dt)))
         self.action_space = action_space()

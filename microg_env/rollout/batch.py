@@ -122,7 +122,7 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
         if isinstance(controller, str):
             nominal = core.base_params if nominal is None else nominal
             controller = make_controller(
-                controller, core.control_period_s, nominal, dict(gains), core.sensor_set, digest
+                controller, core.settings.control_period_s, nominal, dict(gains), core.settings.sensor_set, digest
             )
         controller.reset(np.arange(rigs.size))
         tell_plants(controller, np.arange(rigs.size), [core.episodes[i].params for i in rigs])

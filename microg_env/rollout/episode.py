@@ -51,13 +51,13 @@ def run_episode(
     """
     rig_env = _rig_env(env)
     if duration_s is not None:  # a drawn schedule's duration is known only after the reset: it caps
-        if rig_env.scenario_sampler is not None:
+        if rig_env.settings.scenario_sampler is not None:
             validate.positive("duration_s", duration_s, "s", MAX_DURATION_S, "the longest run")
         else:
             validate.positive("duration_s", duration_s, "s", rig_env.scenario.duration_s, "the scenario's duration")
     obs, info = env.reset(seed=seed)
     scenario_duration = rig_env.active_scenario.duration_s
-    steps = round(min(scenario_duration, duration_s or scenario_duration) / rig_env.control_period_s)
+    steps = round(min(scenario_duration, duration_s or scenario_duration) / rig_env.settings.control_period_s)
     controller.reset()
     tell_plants(controller, np.zeros(1, dtype=np.int64), [rig_env.params])
     raw = env is rig_env and type(env) is MicroGravityLandingEnv  # nothing overrides its step
@@ -114,7 +114,7 @@ def plant_of(env: gym.Env) -> tuple:
     of :func:`~microg_env.sim.reference.simulate_reference` (the scenario and parameters of its reset
     and its steps)."""
     rig_env = _rig_env(env)
-    return rig_env.active_scenario, rig_env.params, rig_env.control_period_s, rig_env.physics_step_s
+    return rig_env.active_scenario, rig_env.params, rig_env.settings.control_period_s, rig_env.settings.physics_step_s
 
 
 def reference_for(env: gym.Env, trajectory: Trajectory) -> Trajectory:

@@ -91,7 +91,7 @@ def pid_runs():
     runs = {}
     for number in (1, 2, 3):
         env = MicroGravityLandingEnv(condition=number)
-        runs[number] = run_with_metrics(env, make_controller("pid", env.control_period_s), seed=0)[2]
+        runs[number] = run_with_metrics(env, make_controller("pid", env.settings.control_period_s), seed=0)[2]
     return runs
 
 
@@ -123,7 +123,7 @@ def test_pid_peak_deformation_within_3_percent_of_ideal_microgravity(pid_runs, n
 @pytest.mark.slow
 def test_pid_dom_meets_the_same_targets():
     env = MicroGravityLandingEnv(condition=3)
-    metrics = run_with_metrics(env, make_controller("pid-dom", env.control_period_s), seed=1)[2]
+    metrics = run_with_metrics(env, make_controller("pid-dom", env.settings.control_period_s), seed=1)[2]
     assert metrics.termination_reason is None
     assert 0.5e-4 <= metrics.microgravity_level_g[0] <= 1.5e-4
     assert metrics.max_deformation_m == pytest.approx(metrics.reference_max_deformation_m, rel=0.03)
@@ -141,7 +141,7 @@ class _Sealed(dict):
 @pytest.mark.parametrize("name", BASELINES)
 def test_baselines_read_only_the_observation(name):
     env = MicroGravityLandingEnv(condition=2)
-    controller = make_controller(name, env.control_period_s)
+    controller = make_controller(name, env.settings.control_period_s)
     observation, _ = env.reset(seed=0)
     controller.reset()
     tell_plants(controller, np.zeros(1, dtype=np.int64), [env.params])  # the oracle's one extra: the plant
@@ -151,7 +151,7 @@ def test_baselines_read_only_the_observation(name):
 
 def test_feedforward_follows_a_setpoint_and_resets():
     env = MicroGravityLandingEnv(condition=2)
-    controller = make_controller("feedforward", env.control_period_s)
+    controller = make_controller("feedforward", env.settings.control_period_s)
     observation, info = env.reset(seed=0)
     controller.reset()
     controller.setpoint_m[0] = 1e-6  # rig 0's setpoint (a controller holds one per rig)

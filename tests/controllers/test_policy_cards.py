@@ -16,9 +16,10 @@ import pytest
 from microg_env.cli import main
 from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy
 from microg_env.controllers.registry import (
-    ACTING_KEYS,
     check_controller_name,
     check_policy_folder,
+    deployed_hidden,
+    load_policy,
     make_controller,
     policy_card,
     shipped_policies,
@@ -26,6 +27,7 @@ from microg_env.controllers.registry import (
 )
 from microg_env.interface import OBSERVATION_INDEX, SENSOR_SETS
 from microg_env.rollout.spec import RunSpec
+from microg_env.task import ACTING_KEYS
 
 #: The rigs each shipped policy reads all it read in training on: the v1-v4 residuals read the pad
 #: force and the accelerometer, which the paper's rig lacks; the gated ones hide them from the agent.
@@ -298,3 +300,45 @@ def test_a_card_is_read_through_the_tasks_own_check(settings, named, tmp_path, c
     (folder / CARD_FILE).write_text(json.dumps(card))
     with pytest.raises(ValueError, match=named):
         check_controller_name(str(folder))
+
+
+# -- one record for how a policy acts -------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["residual-ppo", "residual-sac-gated", "residual-sac-setpoint"])
+def test_the_env_the_card_and_the_loader_read_one_acting_record(name):
+    """How a policy acts is one record (``ActingSettings``): its fields are the cards' acting keys,
+    the task's settings extend it, and the environment its card names, the card and the loaded
+    controller hold the same one (the loader adds only the sensors the rig lacks to its hidden
+    entries). No task setting is copied onto the environment or its core: they are read from
+    ``settings``, one place."""
+    from dataclasses import fields, replace
+
+    from microg_env.task import ActingSettings, TaskSettings
+
+    assert tuple(option.name for option in fields(ActingSettings)) == ACTING_KEYS
+    assert issubclass(TaskSettings, ActingSettings)
+    card = json.loads((shipped_policy_folder(name) / CARD_FILE).read_text())
+    env = gym.make(card["env_id"], **card["env_kwargs"]).unwrapped
+    assert env.settings.acting == ActingSettings.of(card["env_kwargs"])
+    controller = load_policy(shipped_policy_folder(name), env.settings.control_period_s)
+    hidden = deployed_hidden(card["env_kwargs"])
+    assert controller.acting == replace(env.settings.acting, hidden_observations=hidden)
+    for key in (*ACTING_KEYS, "control_period_s", "sensor_set"):
+        assert not hasattr(env, key), key
+        assert not hasattr(env.core, key), key
+
+
+def test_a_bad_acting_value_is_refused_by_the_one_check_wherever_it_comes_from(tmp_path):
+    """The same check, and the same words, for gym.make's keyword, a card's env_kwargs and a
+    record made directly."""
+    from microg_env.task import ActingSettings
+
+    words = "residual_gate_on 'setpoint': there is no gate to place"
+    with pytest.raises(ValueError, match=words):
+        ActingSettings(action_mode="residual", residual_gate_on="setpoint")
+    with pytest.raises(ValueError, match=words):
+        gym.make("MicroGravityLanding-v1", action_mode="residual", residual_gate_on="setpoint")
+    folder = _policy(tmp_path, action_mode="residual", residual_gate_on="setpoint")
+    with pytest.raises(ValueError, match=words):
+        policy_card(folder)

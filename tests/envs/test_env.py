@@ -115,8 +115,8 @@ def test_runs_under_subproc_vec_env():
 @pytest.mark.parametrize("period", [1e-3, 5e-4, 2e-4, 1e-4])
 def test_control_periods_of_the_paper_share_one_physics_step(period):
     env = MicroGravityLandingEnv(condition=1, control_period_s=period)
-    assert env.model.opt.timestep == env.physics_step_s == 1e-4
-    assert env.frame_skip * env.physics_step_s == pytest.approx(period)
+    assert env.model.opt.timestep == env.settings.physics_step_s == 1e-4
+    assert env.settings.frame_skip * env.settings.physics_step_s == pytest.approx(period)
     _, infos = _rollout(env, seed=0, steps=10, action=0.0)
     assert infos[-1]["time_s"] == pytest.approx(10 * period)
 
@@ -124,7 +124,7 @@ def test_control_periods_of_the_paper_share_one_physics_step(period):
 def test_physics_step_is_a_keyword():
     env = MicroGravityLandingEnv(condition=1, physics_step_s=5e-5)
     assert env.model.opt.timestep == 5e-5
-    assert env.frame_skip == 20
+    assert env.settings.frame_skip == 20
 
 
 def test_episode_is_truncated_at_the_scenario_duration_at_any_period():
@@ -142,7 +142,7 @@ def test_starts_balanced_and_places_loads_on_schedule():
     from microg_env.controllers import make_controller
     from microg_env.rollout.episode import run_episode
 
-    trajectory = run_episode(env, make_controller("pid", env.control_period_s), seed=0, duration_s=11.0)
+    trajectory = run_episode(env, make_controller("pid", env.settings.control_period_s), seed=0, duration_s=11.0)
     assert trajectory.foot_height_m[0] == pytest.approx(0.055, abs=1e-12)
     assert trajectory.x_m[0] == 0.0
     assert trajectory.placed_load_kg[0] == pytest.approx(0.05)  # the 50 g weight goes on at t = 0
@@ -178,9 +178,9 @@ def test_task_settings_own_every_default_and_both_envs_pass_them_through():
         assert getattr(env.settings, field.name) == expected, field.name
         if field.name != "decision_period":
             assert getattr(vector.core.settings, field.name) == expected, field.name
-    assert vector.core.decision_period == 3
-    assert env.control_period_s == defaults.control_period_s
-    assert env.frame_skip == defaults.frame_skip
+    assert vector.core.settings.decision_period == 3
+    assert env.settings.control_period_s == defaults.control_period_s
+    assert env.settings.frame_skip == defaults.frame_skip
     with pytest.raises(TypeError, match="not_a_setting"):
         MicroGravityLandingEnv(not_a_setting=1)
     with pytest.raises(ValueError, match="xml_file"):  # checked once, for the vector env too
@@ -697,7 +697,7 @@ def test_the_full_randomisation_draws_the_drive_after_the_plant_and_writes_it_in
     assert old.servo.cogging_phase_rad == 0.0
     assert old.servo.speed_loop_gain_hz == 100.0
     env = MicroGravityLandingEnv(condition=1, domain_randomization="full")  # as a YAML file names it
-    assert env.domain_randomization == full
+    assert env.settings.domain_randomization == full
     phases = set()
     for seed in range(4):
         env.reset(seed=seed)
@@ -722,7 +722,7 @@ def test_the_papers_sensor_set_hides_the_pad_force_and_accelerometer_and_nothing
     for sensors in ("extended", "paper"):
         for name in ("pid", "feedforward"):
             env = MicroGravityLandingEnv(condition=2, sensor_set=sensors)
-            controller = make_controller(name, env.control_period_s)
+            controller = make_controller(name, env.settings.control_period_s)
             observation, _ = env.reset(seed=4)
             controller.reset()
             rows, forces = [], []
@@ -759,7 +759,7 @@ def test_a_mixed_sensor_set_draws_each_episodes_set_with_equal_odds_leaving_ever
         drawn.append(episode.sensor_set)
     assert set(drawn) == {"paper", "extended"}
     assert 160 <= drawn.count("paper") <= 240  # 200 +- 4 standard deviations of 400 fair draws
-    assert not mixed.core.can_run_pid(make_controller("pid", mixed.control_period_s))
+    assert not mixed.core.can_run_pid(make_controller("pid", mixed.settings.control_period_s))
     # resets without a seed draw afresh, and a copy draws what the original does
     mixed.reset(seed=3)
     twin = copy.deepcopy(mixed)
@@ -781,7 +781,7 @@ def test_a_mixed_sensor_set_runs_each_episode_bit_for_bit_as_its_drawn_set():
     runs = {}
     for sensors in ("mixed", "paper", "extended"):
         env = MicroGravityLandingEnv(scenario=touch, sensor_set=sensors)
-        controller = make_controller("feedforward", env.control_period_s)
+        controller = make_controller("feedforward", env.settings.control_period_s)
         for seed in range(6):
             observation, _ = env.reset(seed=seed)
             controller.reset()
@@ -972,7 +972,7 @@ def test_the_wider_test_plants_draw_every_range_half_again_as_wide():
         assert getattr(wider, name) == pytest.approx(1.5 * getattr(full, name))
     assert wider.cogging_phase == 1.0
     env = MicroGravityLandingEnv(condition=2, domain_randomization="wider")  # as a YAML file or a RunSpec names it
-    assert env.domain_randomization == wider
+    assert env.settings.domain_randomization == wider
     stiffness = []
     for seed in range(40):
         env.reset(seed=seed)

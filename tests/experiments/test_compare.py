@@ -250,7 +250,7 @@ def test_the_gated_policy_shipped_for_v5_records_its_training():
     assert (env["base_controller"], env["residual_gate_m"]) == ("adaptive-dither", 0.0)
     assert env["hidden_observations"] == ["support_position", "lander_accel", "pad_force"]
     controller = load_policy(folder, 1e-3)
-    assert controller.residual_gate_m == 0.0
+    assert controller.acting.residual_gate_m == 0.0
     assert controller.policy.squash  # SAC's tanh
     hidden = (*SENSOR_SETS["paper"], "support_position")
     assert sorted(controller._hidden) == sorted(OBSERVATION_INDEX[name] for name in hidden)
@@ -276,7 +276,7 @@ def test_the_setpoint_gated_policy_records_its_training():
     recipe = load_hyperparams("sac", "MicroGravityLanding-Residual-v6").as_config()
     assert card["hyperparams"] == json.loads(json.dumps(recipe))  # JSON keeps a tuple as a list
     controller = load_policy(folder, 1e-3)
-    assert (controller.residual_gate_m, controller.residual_gate_on) == (0.0, "setpoint")
+    assert (controller.acting.residual_gate_m, controller.acting.residual_gate_on) == (0.0, "setpoint")
     assert controller.policy.squash  # SAC's tanh
     _check_costs_by_the_mean(folder)
     _check_training_record(folder, card, 200_000, "0.1332")

@@ -322,7 +322,7 @@ def test_a_policy_folder_runs_only_at_its_control_period(tmp_path):
     model = PPO("MlpPolicy", venv, seed=0, device="cpu")
     write_policy_folder(tmp_path / "policy", model, venv, {"env_kwargs": RESIDUAL})
     controller = make_controller(str(tmp_path / "policy"), 1e-3)
-    assert controller.decision_period == 5
+    assert controller.acting.decision_period == 5
     assert controller.base is not None
     with pytest.raises(ValueError, match="trained at 1000 us"):
         make_controller(str(tmp_path / "policy"), 5e-4)
@@ -1044,8 +1044,12 @@ def test_validation_on_the_residual_task_drives_a_speed_environment(env_id):
     from microg_env.learning.train import validation_settings
 
     env = MicroGravityLandingEnv(**validation_settings(gym.spec(env_id).kwargs))
-    assert (env.core.action_mode, env.core.decision_period, env.core.hidden_observations) == ("speed", 1, ())
-    assert env.domain_randomization == microg_env.DomainRandomization.full()
+    assert (
+        env.core.settings.action_mode,
+        env.core.settings.decision_period,
+        env.core.settings.hidden_observations,
+    ) == ("speed", 1, ())
+    assert env.settings.domain_randomization == microg_env.DomainRandomization.full()
 
 
 @pytest.mark.slow
@@ -1162,10 +1166,10 @@ def test_the_working_ids_recipe_beats_its_zero_residual_at_the_collision_after_a
     cannot tell them apart (it scores x in every period, the long rest on the pad included: the
     shipped policy's paired return over seeds 1000-1019 is the zero residual's, -0.13 +- 0.96), so
     the test reads what the recipe is chosen by."""
-    from microg_env.controllers.registry import ACTING_KEYS, load_policy, policy_card
+    from microg_env.controllers.registry import load_policy, policy_card
     from microg_env.learning.train import TrainSettings, train
     from microg_env.rollout.batch import evaluate_batch
-    from microg_env.task import TaskSettings
+    from microg_env.task import ACTING_KEYS, TaskSettings
 
     settings = TrainSettings(
         algo="sac",

@@ -60,7 +60,9 @@ def test_report_numbers_are_the_metrics_of_the_runs(reproduced, pad, number):
     params = with_pad(RigParams(), pad)
     assert summary["pads"][pad]["stiffness_n_per_m"] == params.pad.stiffness_n_per_m
     env = MicroGravityLandingEnv(scenario=CONDITIONS[number], params=params)
-    _, _, metrics = run_with_metrics(env, make_controller("pid", env.control_period_s), seed=0, duration_s=DURATION)
+    _, _, metrics = run_with_metrics(
+        env, make_controller("pid", env.settings.control_period_s), seed=0, duration_s=DURATION
+    )
     assert summary["metrics"][pad][str(number)] == json.loads(json.dumps(metrics.as_dict()))
     assert f"{metrics.max_deformation_m * 1e3:.2f}" in markdown
     assert f"{metrics.collision_accel_m_s2 * 1e3:.2f}" in markdown

@@ -60,10 +60,10 @@ def test_a_drawn_schedule_runs_to_its_own_duration():
     """With a scenario sampler the duration is drawn at reset (here a few seconds): a longer cap
     than condition 1's 30 s is accepted and the run ends at the drawn schedule's end."""
     env = MicroGravityLandingEnv(scenario_sampler="training")
-    trajectory = run_episode(env, make_controller("pid", env.control_period_s), seed=0, duration_s=40.0)
+    trajectory = run_episode(env, make_controller("pid", env.settings.control_period_s), seed=0, duration_s=40.0)
     drawn = env.active_scenario.duration_s
     assert drawn < 30.0
-    assert trajectory.time_s[-1] == pytest.approx(drawn, abs=env.control_period_s)
+    assert trajectory.time_s[-1] == pytest.approx(drawn, abs=env.settings.control_period_s)
 
 
 def _both_loops(settings: dict, controller: str = "pid", seed: int = 0, pid=None, **kwargs):
@@ -73,7 +73,7 @@ def _both_loops(settings: dict, controller: str = "pid", seed: int = 0, pid=None
     runs = []
     for python_loop in (False, True):
         env = MicroGravityLandingEnv(**settings)
-        each = make_controller(controller, env.control_period_s, **kwargs) if pid is None else pid()
+        each = make_controller(controller, env.settings.control_period_s, **kwargs) if pid is None else pid()
         reports, calls = [], []
         env.core.run_pid = lambda *args, calls=calls, run=env.core.run_pid: calls.append(args[1]) or run(*args)
         on_step = (lambda env, info: None) if python_loop else None

@@ -27,7 +27,9 @@ STAGE_1_S = 8.5
 
 def _run(condition: int = 3, duration_s: float | None = None, seed: int = 0, **kwargs) -> RunMetrics:
     env = MicroGravityLandingEnv(condition=condition, **kwargs)
-    return run_with_metrics(env, make_controller("pid", env.control_period_s), seed=seed, duration_s=duration_s)[2]
+    return run_with_metrics(
+        env, make_controller("pid", env.settings.control_period_s), seed=seed, duration_s=duration_s
+    )[2]
 
 
 @pytest.mark.slow
@@ -55,7 +57,9 @@ def test_ideal_rig_with_the_feedforward_matches_the_reference_within_0_05_percen
     removes: every imperfection off, |compensation error| <= 0.05 % and the peak deformation within
     0.1 % of the ideal-microgravity reference."""
     env = MicroGravityLandingEnv(condition=1, imperfections=Imperfections.none())
-    metrics = run_with_metrics(env, make_controller("feedforward", env.control_period_s), seed=0, duration_s=12.0)[2]
+    metrics = run_with_metrics(
+        env, make_controller("feedforward", env.settings.control_period_s), seed=0, duration_s=12.0
+    )[2]
     assert abs(metrics.compensation_error_pct[0]) <= 0.05
     assert metrics.max_deformation_m == pytest.approx(metrics.reference_max_deformation_m, rel=1e-3)
 
