@@ -22,8 +22,7 @@ import numpy as np
 from microg_env import validate
 from microg_env.params import LOAD_CAPACITY_KG, RigParams, parameter_paths
 from microg_env.scenarios import Scenario
-from microg_env.sim.limits import check_pad
-from microg_env.sim.model import validate_loads
+from microg_env.sim.limits import check_pad, validate_loads
 from microg_env.validate import FieldError
 
 

@@ -4,11 +4,17 @@ action means, and the spaces both are drawn from.
 The environment (:mod:`microg_env.envs`) writes observations and reads actions; the controllers
 (:mod:`microg_env.controllers`) read observations and write actions. Both import this module and
 neither imports the other for it.
+
+The controllers selectable by name (:data:`CONTROLLER_NAMES`: the baselines and the policies
+shipped in ``microg_env/policies``) are found here without importing the controllers, so the
+``microg`` command names them, and refuses a name that is neither, before the physics imports.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
 
 import numpy as np
 from gymnasium import spaces
@@ -22,6 +28,41 @@ from microg_env.params import ScrewStageParams
 #: (``adaptive``), that with a dither on its setpoint against the friction (``adaptive-dither``),
 #: and the bound: the feed-forward told the episode's true plant (``oracle``, not deployable).
 BASELINES = ("pid", "pid-dom", "feedforward", "adaptive", "adaptive-dither", "oracle")
+#: Files of an exported policy folder: its network and its card (how it acts, how it was trained).
+NETWORK_FILE, CARD_FILE = "policy.npz", "policy.json"
+
+
+def shipped_policies() -> tuple[str, ...]:
+    """Names of the policies shipped in the package (``microg_env/policies/<name>/``)."""
+    root = resources.files("microg_env").joinpath("policies")
+    if not root.is_dir():
+        return ()
+    return tuple(sorted(p.name for p in root.iterdir() if p.is_dir() and p.joinpath(CARD_FILE).is_file()))
+
+
+#: Every controller selectable by name: the baselines and the shipped policies.
+CONTROLLER_NAMES = BASELINES + shipped_policies()
+
+
+def is_policy_folder(name: str) -> bool:
+    """Whether ``name`` is the path of an exported policy folder (rather than a controller's name)."""
+    return name not in CONTROLLER_NAMES and (Path(name) / CARD_FILE).is_file()
+
+
+def selects_policy(name: str) -> bool:
+    """Whether controller ``name`` is a policy (a shipped one, or the path of a policy folder)
+    rather than a baseline; a ValueError listing the controllers where it is neither. Nothing is
+    read: :func:`microg_env.controllers.registry.check_controller_name` checks a policy's folder."""
+    if name in BASELINES:
+        return False
+    if name in CONTROLLER_NAMES or is_policy_folder(name):
+        return True
+    raise ValueError(
+        f"controller must be one of {', '.join(CONTROLLER_NAMES)} or a policy folder (holding {CARD_FILE}), "
+        f"got {name!r}"
+    )
+
+
 #: Observation entries and the scale each is divided by (SI units / scale = order one).
 OBSERVATION_SCALES: dict[str, float] = {
     "x": 1e-4,  # grating ruler, m (100 um)

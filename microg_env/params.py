@@ -154,6 +154,11 @@ class PadParams:
         validate.between("PadParams.impedance", self.impedance, 1.0e-4, 0.5, high_open=True)
 
 
+#: Pads selectable by name: Table 1's (PadParams' defaults), and the fits stored in config/pads.toml
+#: with their provenance (:func:`microg_env.paper.calibration.pad_params`).
+PAD_NAMES = ("paper", "calibrated", "paper-simulation")
+
+
 @dataclass(frozen=True)
 class LanderParams:
     """The lander (spacecraft) and its flat cylindrical foot."""

@@ -13,7 +13,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from microg_env.files import check_writable
-from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S
+from microg_env.interface import selects_policy
+from microg_env.params import PAD_NAMES, PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S
 from microg_env.scenarios import MAX_DURATION_S, MIN_DURATION_S
 
 #: Seeds accepted on the command line (NumPy's and Gymnasium's seeds are non-negative).
@@ -201,8 +202,6 @@ def pad_from_options(args: argparse.Namespace):
 
 
 def add_pad_options(parser: argparse.ArgumentParser) -> None:
-    from microg_env.paper.calibration import PAD_NAMES
-
     parser.add_argument(
         "--pad",
         choices=PAD_NAMES,
@@ -235,9 +234,13 @@ def add_physics_step_option(parser: argparse.ArgumentParser) -> None:
 
 
 def controller_name(text: str) -> str:
-    from microg_env.controllers.registry import check_controller_name
-
+    """An argparse type: a controller's name or a policy folder; a name that is neither is refused
+    before the controllers import, a policy's folder is read and checked now."""
     try:
-        return check_controller_name(text)
+        if selects_policy(text):
+            from microg_env.controllers.registry import check_controller_name
+
+            check_controller_name(text)
     except ValueError as error:
         raise argparse.ArgumentTypeError(str(error).removeprefix("controller ")) from None
+    return text

@@ -18,11 +18,17 @@ from microg_env.cli.common import (
     progress_bar,
     seed_number,
 )
-from microg_env.controllers.registry import CONTROLLER_NAMES
-from microg_env.experiments.comparison import MAX_SEEDS, MAX_WORKERS, TEST_SEED
+from microg_env.experiments.comparison_settings import MAX_SEEDS, MAX_WORKERS, TEST_SEED
 from microg_env.imperfections import PRESETS
-from microg_env.learning.hyperparams import ALGORITHMS, CONTRIB_ALGORITHMS, MAX_ENVS
-from microg_env.learning.train import MAX_EVAL_EPISODES, TRAIN_EXTRA, TrainSettings
+from microg_env.interface import CONTROLLER_NAMES
+from microg_env.learning.settings import (
+    ALGORITHMS,
+    CONTRIB_ALGORITHMS,
+    MAX_ENVS,
+    MAX_EVAL_EPISODES,
+    TRAIN_EXTRA,
+    TrainSettings,
+)
 from microg_env.scenarios import comparison_scenarios
 from microg_env.validate import shown
 

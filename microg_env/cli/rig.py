@@ -13,7 +13,6 @@ import threading
 from dataclasses import replace
 from pathlib import Path
 
-from microg_env.analysis.metrics import INSTANT_WINDOWS_S, in_flight_weights
 from microg_env.cli.common import (
     DROP_OPTIONS,
     RUN_OPTIONS,
@@ -28,8 +27,8 @@ from microg_env.cli.common import (
     progress_bar,
     seed_number,
 )
-from microg_env.controllers.registry import CONTROLLER_NAMES
 from microg_env.imperfections import IMPERFECTION_NAMES
+from microg_env.interface import CONTROLLER_NAMES
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, LOAD_CAPACITY_KG
 from microg_env.scenarios import MIN_HEIGHT_M, MIN_LOAD_KG, LoadStep
 
@@ -144,6 +143,8 @@ def _format_row(label: str, values: list[float], scale: float, spec: str) -> str
 
 
 def _print_run(scenario, pad, args: argparse.Namespace, m) -> None:
+    from microg_env.analysis.metrics import INSTANT_WINDOWS_S, in_flight_weights
+
     print(
         f"{scenario.name}: loads {scenario.loads_text}; descent from {scenario.descent_height_m * 1e3:g} mm; "
         f"{args.pad} pad (K = {pad.stiffness_n_per_m:.1f} N/m, D = {pad.damping_n_s_per_m:.1f} N s/m); "

@@ -32,6 +32,7 @@ from microg_env import validate
 from microg_env.compiled import jit
 from microg_env.controllers.base import SetpointController, VectorController, tell_plants
 from microg_env.files import atomic_path
+from microg_env.interface import CARD_FILE as CARD_FILE  # a policy folder's files, named here too
 from microg_env.interface import (
     MAX_SPEED_M_S,
     OBSERVATION_INDEX,
@@ -39,6 +40,7 @@ from microg_env.interface import (
     gated_setpoint,
     highpass_gain,
 )
+from microg_env.interface import NETWORK_FILE as NETWORK_FILE
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.task import ActingSettings
 
@@ -57,8 +59,6 @@ ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 #: The smallest observation clip a policy may have, in standard deviations (VecNormalize's default
 #: is 10): a clip inside one makes most observations one constant, a policy blind to them.
 MIN_CLIP_OBS = 1.0
-#: Files of an exported policy folder.
-NETWORK_FILE, CARD_FILE = "policy.npz", "policy.json"
 #: Most bytes an exported network may hold once unpacked (the shipped one: 23 kB); checked from the
 #: archive's headers before anything is read, so a small archive cannot unpack to gigabytes.
 MAX_NETWORK_BYTES = 64 * 2**20

@@ -23,12 +23,17 @@ from microg_env import validate
 from microg_env.controllers.base import Controller
 from microg_env.controllers.feedforward import AdaptiveFeedforward, DitheredAdaptiveFeedforward, Feedforward, Oracle
 from microg_env.controllers.pid import PID, load_gains
-from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy, PolicyController
+from microg_env.controllers.policy import MLPPolicy, PolicyController
 from microg_env.interface import (
     BASELINES,
+    CARD_FILE,
     MIXED_SENSORS,
+    NETWORK_FILE,
     SENSOR_SETS,
     hidden_entries,
+    is_policy_folder,
+    selects_policy,
+    shipped_policies,
 )
 from microg_env.params import CONTROL_PERIOD_RANGE_S, RigParams
 from microg_env.task import ACTING_KEYS, ActingSettings, TaskSettings
@@ -64,24 +69,14 @@ CARD_KEYS = (
 ENTRY_POINT = "microg_env.envs.landing:MicroGravityLandingEnv"
 
 
-def is_policy_folder(name: str) -> bool:
-    """Whether ``name`` is the path of an exported policy folder (rather than a controller's name)."""
-    return name not in CONTROLLER_NAMES and (Path(name) / CARD_FILE).is_file()
-
-
 def check_controller_name(name: str, sensor_set: str = "extended") -> str:
     """``name`` if it selects a controller that runs on a rig of ``sensor_set`` (a policy: one
-    trained on what that rig reads, :func:`check_sensor_set`), else a ValueError listing what does."""
-    if name in BASELINES:
-        return name
-    if name in CONTROLLER_NAMES or is_policy_folder(name):
+    trained on what that rig reads, :func:`check_sensor_set`), else a ValueError listing what does
+    (:func:`~microg_env.interface.selects_policy`)."""
+    if selects_policy(name):
         card, _ = check_policy_folder(policy_folder(name))  # a broken folder named now, not once the work started
         check_sensor_set(name, card["env_kwargs"], sensor_set)
-        return name
-    raise ValueError(
-        f"controller must be one of {', '.join(CONTROLLER_NAMES)} or a policy folder (holding {CARD_FILE}), "
-        f"got {name!r}"
-    )
+    return name
 
 
 def policy_folder(name: str) -> Path:
@@ -112,18 +107,6 @@ def make_controller(
             return FEEDFORWARDS[name](control_period_s, params, gains=tuned)
         return PID(tuned, control_period_s, derivative_on_measurement=name == "pid-dom")
     return load_policy(policy_folder(name), control_period_s, sensor_set, digest)
-
-
-def shipped_policies() -> tuple[str, ...]:
-    """Names of the policies shipped in the package (``microg_env/policies/<name>/``)."""
-    root = resources.files("microg_env").joinpath("policies")
-    if not root.is_dir():
-        return ()
-    return tuple(sorted(p.name for p in root.iterdir() if p.is_dir() and p.joinpath(CARD_FILE).is_file()))
-
-
-#: Every controller selectable by name: the baselines and the shipped policies.
-CONTROLLER_NAMES = BASELINES + shipped_policies()
 
 
 def policy_card(folder: str | Path) -> dict[str, Any]:

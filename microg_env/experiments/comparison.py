@@ -24,17 +24,15 @@ from microg_env import validate
 from microg_env.analysis.metrics import COMPARED_WINDOW, RunMetrics, contacts
 from microg_env.analysis.paired import Paired, paired
 from microg_env.analysis.summary import Summary, finite_mean, summarise
-from microg_env.controllers.registry import CONTROLLER_NAMES, check_controller_name, controller_digest
+from microg_env.controllers.registry import check_controller_name, controller_digest
+from microg_env.experiments.comparison_settings import MAX_SEEDS, MAX_WORKERS, TEST_SEED
+from microg_env.interface import CONTROLLER_NAMES
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.rollout.runner import run_many
 from microg_env.rollout.spec import RunSpec
 from microg_env.scenarios import Scenario, comparison_scenarios
 from microg_env.trajectory import Trajectory
 
-#: First test seed: training seeds its environments from 0 (``n_envs`` of them), validation from 500.
-TEST_SEED = 1000
-#: Most seeds per scenario and worker processes a comparison takes.
-MAX_SEEDS, MAX_WORKERS = 1000, 256
 #: The window of x kept for the figure, s before and after the first touchdown.
 X_WINDOW_S = (-1.0, 3.0)
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy
 from microg_env.files import replace_folder
-from microg_env.learning.hyperparams import CONTRIB_ALGORITHMS
+from microg_env.learning.settings import CONTRIB_ALGORITHMS
 
 #: stable-baselines3's files in a policy folder, for fine-tuning and the zoo's ``enjoy``.
 MODEL_FILE, NORMALIZATION_FILE = "model.zip", "vecnormalize.pkl"

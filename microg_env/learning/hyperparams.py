@@ -23,12 +23,9 @@ from gymnasium.envs.registration import registry
 from microg_env import validate
 from microg_env.controllers.policy import MIN_CLIP_OBS
 from microg_env.files import read_yaml
+from microg_env.learning.settings import ALGORITHMS, MAX_ENVS
 from microg_env.validate import shown
 
-#: Algorithms ``microg train`` runs (stable-baselines3's PPO and SAC, sb3-contrib's TQC and CrossQ).
-ALGORITHMS = ("ppo", "sac", "tqc", "crossq")
-#: The sb3-contrib algorithms among them, by their class names there.
-CONTRIB_ALGORITHMS = {"tqc": "TQC", "crossq": "CrossQ"}
 #: Algorithm arguments microg train sets itself (from its options), refused in a file.
 SET_BY_TRAIN = ("device", "seed", "verbose", "tensorboard_log", "env", "policy")
 #: Algorithm arguments that count something, each a positive integer (target_update_interval 0
@@ -49,8 +46,6 @@ INTEGER_KEYS = dict.fromkeys(COUNT_KEYS, 1) | {"learning_starts": 0, "gradient_s
 #: TQC's quantiles per critic network unless policy_kwargs give n_quantiles, and those of each it
 #: drops unless top_quantiles_to_drop_per_net says (sb3-contrib's defaults).
 TQC_QUANTILES, TQC_DROPPED = 25, 2
-#: Most environments a run steps (the CLI's --n-envs cap: rigs of one batch).
-MAX_ENVS = 256
 #: The zoo's keys that are not the algorithm's keyword arguments.
 ZOO_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "env_kwargs")
 #: Keys rl-baselines3-zoo reads that ``microg train`` does not (use ``python -m rl_zoo3.train``).

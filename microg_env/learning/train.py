@@ -40,7 +40,7 @@ import shutil
 import time
 import zipfile
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +51,15 @@ from microg_env.controllers.registry import deployed_controller, make_controller
 from microg_env.files import atomic_path, folder_lock, read_settings_text, read_yaml, replace_folder, write_text
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import MODEL_FILE, NORMALIZATION_FILE, write_policy_folder
+from microg_env.learning.settings import (
+    ALGORITHMS,
+    CONTRIB_ALGORITHMS,
+    ENV_IDS,
+    MAX_ENVS,
+    MAX_EVAL_EPISODES,
+    TRAIN_EXTRA,
+    TrainSettings,
+)
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.task import ACTING_KEYS
 from microg_env.validate import fault, shown
@@ -58,68 +67,37 @@ from microg_env.validate import fault, shown
 #: First seed of the validation episodes that choose the best model (training envs are seeded
 #: ``seed`` to ``seed + n_envs - 1``; ``microg compare`` tests on seeds from 1000).
 VALIDATION_SEED = 500
-#: The environments ``microg train`` trains on.
-ENV_IDS = (
-    "MicroGravityLanding-v1",
-    "MicroGravityLanding-Residual-v1",
-    "MicroGravityLanding-Residual-v2",
-    "MicroGravityLanding-Residual-v3",
-    "MicroGravityLanding-Residual-v4",
-    "MicroGravityLanding-Residual-v5",
-    "MicroGravityLanding-Residual-v6",
-)
 #: Folders and files of a run.
 CHECKPOINTS, LATEST, POLICY, EVALUATIONS, LOG = "checkpoints", "latest.json", "policy", "evaluations.json", "train.log"
-#: What training needs installed, named when it is missing.
-TRAIN_EXTRA = "microg train needs the train extra: pip install 'microg-env[train]'"
 
 
 class TrainingInterrupted(Exception):
     """Training stopped by the user after saving a checkpoint."""
 
 
-#: Most validation episodes a run takes.
-MAX_EVAL_EPISODES = 1000
 #: The integer settings of a run (``args.yml``) and their ranges.
 SETTING_RANGES = {
     "seed": (0, 2**32 - 1),
     "timesteps": (1, 10**12),
-    "n_envs": (1, hp.MAX_ENVS),
+    "n_envs": (1, MAX_ENVS),
     "eval_freq": (1, 10**12),
     "eval_episodes": (1, MAX_EVAL_EPISODES),
     "checkpoint_freq": (1, 10**12),
 }
 
 
-@dataclass(frozen=True)
-class TrainSettings:
-    """What a run is asked to do (``args.yml``)."""
-
-    algo: str = "ppo"
-    env_id: str = ENV_IDS[0]
-    seed: int = 0
-    timesteps: int | None = None  # None: the hyperparameter file's n_timesteps
-    n_envs: int | None = None  # None: the hyperparameter file's n_envs
-    hyperparams: str | None = None  # None: the packaged microg_env/hyperparams/<algo>.yml
-    log_folder: str = "logs"
-    eval_freq: int = 100_000  # environment steps (all environments together) between evaluations
-    eval_episodes: int = 5
-    checkpoint_freq: int = 100_000  # environment steps between checkpoints
-    command: str = ""
-
-
 def algorithm(name: str):
-    """The algorithm class of ``name`` (one of :data:`~microg_env.learning.hyperparams.ALGORITHMS`);
+    """The algorithm class of ``name`` (one of :data:`~microg_env.learning.settings.ALGORITHMS`);
     TQC (truncated quantile critics, an actor built as SAC's) and CrossQ (SAC with batch
     renormalisation and no target networks) are sb3-contrib's, imported only for them (a ValueError
     naming the extra where it is missing)."""
-    if name in hp.CONTRIB_ALGORITHMS:
+    if name in CONTRIB_ALGORITHMS:
         try:
             import sb3_contrib
         except ImportError:
             raise ValueError(TRAIN_EXTRA) from None
 
-        return getattr(sb3_contrib, hp.CONTRIB_ALGORITHMS[name])
+        return getattr(sb3_contrib, CONTRIB_ALGORITHMS[name])
     from stable_baselines3 import PPO, SAC
 
     return {"ppo": PPO, "sac": SAC}[name]
@@ -330,7 +308,7 @@ def _check_args(path: Path, args: object) -> TrainSettings:
         raise ValueError(f"--resume: {str(path)!r}: {why}")
     where = f"--resume: {str(path)!r}"
     settings = TrainSettings(**args)
-    for name, choices in (("algo", hp.ALGORITHMS), ("env_id", ENV_IDS)):
+    for name, choices in (("algo", ALGORITHMS), ("env_id", ENV_IDS)):
         value = getattr(settings, name)
         if value not in choices:
             raise ValueError(f"{where}: {name} must be one of {', '.join(choices)}, got {shown(value)}")
@@ -420,7 +398,7 @@ def _check_algorithm(args: Path, algo: str, model: Path) -> None:
     if module in _policy_modules(algo):
         return
     holds = f"no {algo.upper()} model"
-    for name in hp.ALGORITHMS:
+    for name in ALGORITHMS:
         try:
             if module in _policy_modules(name):
                 holds = f"a {name.upper()} model"
@@ -746,7 +724,7 @@ class _Run:
         from microg_env.version import __version__
 
         versions = {"microg_env": __version__, "stable_baselines3": stable_baselines3.__version__}
-        if self.params.algo in hp.CONTRIB_ALGORITHMS:
+        if self.params.algo in CONTRIB_ALGORITHMS:
             import sb3_contrib
 
             versions["sb3_contrib"] = sb3_contrib.__version__

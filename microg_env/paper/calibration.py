@@ -24,7 +24,7 @@ import numpy as np
 from mujoco import minimize
 
 from microg_env.paper.tables import PUBLISHED, experiment_relative_error_pct
-from microg_env.params import PadParams, RigParams
+from microg_env.params import PAD_NAMES, PadParams, RigParams
 from microg_env.scenarios import CONDITIONS, Scenario
 from microg_env.sim.contact import damping_ratio
 from microg_env.sim.model import build_pad_test, pad_contact_solref
@@ -39,8 +39,6 @@ _MAX_DAMPING_RATIO = 0.95
 #: The fit's finite-difference step on log K and log damping ratio: a landing's peaks are read at
 #: physics steps, so the residuals are smooth only at steps far above the solver's default 1.5e-8.
 _FIT_STEP = 1e-4
-#: Pads selectable by name: Table 1's, and the fits stored in config/pads.toml with their provenance.
-PAD_NAMES = ("paper", "calibrated", "paper-simulation")
 
 
 class LandingModel:

@@ -1,4 +1,4 @@
-"""What the pad and the physics step can take: checks made before a run, never after it.
+"""What the pad, the test weights and the physics step can take: checks made before a run, never after it.
 
 A pad whose contact (Eq. 7) lasts fewer than ``MIN_STEPS_PER_CONTACT`` physics steps would be
 integrated so coarsely that the landing gains energy; a landing that would deform the pad by its
@@ -12,9 +12,27 @@ from __future__ import annotations
 
 import math
 
+from microg_env import validate
 from microg_env.params import MIN_PAD_DAMPING_RATIO, MIN_STEPS_PER_CONTACT, PadParams, RigParams
 from microg_env.sim.contact import SpringDamperContact
 from microg_env.validate import FieldError
+
+
+def validate_loads(loads_kg: tuple[float, ...], lander_mass_kg: float) -> None:
+    """Test weights are small excitations of the balanced lander.
+
+    The rig simulates 1e-2 to 1e-4 g (Conclusions); a total m above M/99 would make the simulated
+    field m g / (M + m) exceed 1e-2 g.
+    """
+    for i, mass in enumerate(loads_kg):
+        validate.positive(f"load {i} mass", mass, "kg")
+    limit = lander_mass_kg / 99.0
+    if sum(loads_kg) > limit:
+        raise FieldError(
+            f"loads totalling {sum(loads_kg):g} kg on a {lander_mass_kg:g} kg lander exceed {limit:.2f} kg, "
+            f"the most that keeps the simulated field within the rig's 1e-2 g range",
+            "loads_kg",
+        )
 
 
 def check_damping(mass_kg: float, stiffness_n_per_m: float, damping_n_s_per_m: float) -> SpringDamperContact:

@@ -22,7 +22,7 @@ import numpy as np
 from microg_env import validate
 from microg_env.compiled import ufunc
 from microg_env.params import PHYSICS_STEP_RANGE_S, PHYSICS_STEP_S, RigParams, parameter_paths
-from microg_env.sim.limits import check_integrable
+from microg_env.sim.limits import check_integrable, validate_loads
 from microg_env.sim.physics import FieldWrite
 from microg_env.validate import FieldError
 
@@ -404,23 +404,6 @@ def _load_geometry(mass_kg: float) -> tuple[float, float]:
     """Radius and half-height of a steel cylinder of height 1.5 x radius with this mass."""
     radius = (mass_kg / (_STEEL_DENSITY_KG_M3 * math.pi * 1.5)) ** (1.0 / 3.0)
     return radius, 0.75 * radius
-
-
-def validate_loads(loads_kg: tuple[float, ...], lander_mass_kg: float) -> None:
-    """Test weights are small excitations of the balanced lander.
-
-    The rig simulates 1e-2 to 1e-4 g (Conclusions); a total m above M/99 would make the simulated
-    field m g / (M + m) exceed 1e-2 g.
-    """
-    for i, mass in enumerate(loads_kg):
-        validate.positive(f"load {i} mass", mass, "kg")
-    limit = lander_mass_kg / 99.0
-    if sum(loads_kg) > limit:
-        raise FieldError(
-            f"loads totalling {sum(loads_kg):g} kg on a {lander_mass_kg:g} kg lander exceed {limit:.2f} kg, "
-            f"the most that keeps the simulated field within the rig's 1e-2 g range",
-            "loads_kg",
-        )
 
 
 def _apply_geometry_and_masses(spec: mujoco.MjSpec, params: RigParams, physics_step_s: float) -> None:

@@ -22,7 +22,7 @@ import microg_env
 from microg_env import cli
 from microg_env.cli import main
 from microg_env.cli.common import DROP_OPTIONS, RUN_OPTIONS, naming
-from microg_env.controllers.registry import ACTING_KEYS
+from microg_env.task import ACTING_KEYS
 from microg_env.validate import FieldError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -213,9 +213,8 @@ def _cases():
     yield ["compare", "--controllers", "{no_network}"], "policy.npz"
 
 
-@pytest.mark.parametrize(("args", "word"), list(_cases()), ids=lambda v: " ".join(v) if isinstance(v, list) else v)
-@pytest.mark.slow
-def test_bad_input_is_one_line_naming_the_option_exit_2_and_writes_nothing(args, word, tmp_path):
+def _bad_input_folder(tmp_path: Path) -> Path:
+    """A working folder holding what the cases' placeholders name, and files nothing may touch."""
     folder = tmp_path / "cwd"
     folder.mkdir()
     (folder / "existing-dir").mkdir()
@@ -230,26 +229,72 @@ def test_bad_input_is_one_line_naming_the_option_exit_2_and_writes_nothing(args,
     (folder / "no-network").mkdir()
     (folder / "no-network" / "policy.json").write_text('{"env_kwargs": {}}')
     (folder / "ppo.yml").write_text((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())
-    places = {"{dir}": "existing-dir", "{file}": "existing-file", "{readonly}": "read-only"}
-    places |= {"{broken_policy}": "broken-policy", "{no_network}": "no-network", "{hyperparams}": "ppo.yml"}
-    places |= {"{dangling}": "dangling", "{dirlink}": "dir-link"}
-    for key, name in places.items():
+    return folder
+
+
+PLACES = {
+    "{dir}": "existing-dir",
+    "{file}": "existing-file",
+    "{readonly}": "read-only",
+    "{broken_policy}": "broken-policy",
+    "{no_network}": "no-network",
+    "{hyperparams}": "ppo.yml",
+    "{dangling}": "dangling",
+    "{dirlink}": "dir-link",
+}
+
+
+def _placed(args: list[str]) -> list[str]:
+    for key, name in PLACES.items():
         args = [a.replace(key, name) for a in args]
-    before = sorted(p.name for p in folder.iterdir())
-    start = time.perf_counter()
-    result = _run(*args, cwd=folder)
-    assert time.perf_counter() - start < 60
-    assert result.returncode == 2, result.stderr + result.stdout
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1, result.stderr
+    return args
+
+
+def _assert_refused(code: int, out: str, err: str, word: str, folder: Path, before: list[str]) -> None:
+    """Exit 2, one line on stderr naming ``word``, nothing on stdout, nothing written or touched."""
+    assert code == 2, err + out
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
     assert word.lower() in lines[0].lower(), lines[0]
-    assert "Traceback" not in result.stderr
-    assert result.stdout == ""
+    assert "Traceback" not in err
+    assert out == ""
     assert sorted(p.name for p in folder.iterdir()) == before
     assert sorted(p.name for p in (folder / "existing-dir").iterdir()) == []
     assert (folder / "existing-file").read_text() == "keep"
     assert (folder / "read-only.png").read_text() == "keep"
     assert not Path("/tmp/never-written.xml").exists()
+
+
+CASES = list(_cases())
+
+
+@pytest.mark.parametrize(("args", "word"), CASES, ids=lambda v: " ".join(v) if isinstance(v, list) else v)
+def test_bad_input_is_one_line_naming_the_option_exit_2_and_writes_nothing(args, word, tmp_path, monkeypatch, capsys):
+    """In process, as the console script calls :func:`main` (each command's subprocess is below)."""
+    folder = _bad_input_folder(tmp_path)
+    before = sorted(p.name for p in folder.iterdir())
+    monkeypatch.chdir(folder)
+    code = main(_placed(args))
+    out, err = capsys.readouterr()
+    _assert_refused(code, out, err, word, folder, before)
+
+
+#: The first bad-input case of each command, and of no command: run as a user runs it, a process of
+#: its own, so that a warning or a log line printed on the way would show as a second line.
+SMOKE = list(
+    {args[0] if not args[0].startswith("-") else "--": (args, word) for args, word in reversed(CASES)}.values()
+)
+
+
+@pytest.mark.parametrize(("args", "word"), SMOKE, ids=lambda v: " ".join(v) if isinstance(v, list) else v)
+@pytest.mark.slow
+def test_each_command_refuses_bad_input_in_a_process_of_its_own(args, word, tmp_path):
+    folder = _bad_input_folder(tmp_path)
+    before = sorted(p.name for p in folder.iterdir())
+    start = time.perf_counter()
+    result = _run(*_placed(args), cwd=folder)
+    assert time.perf_counter() - start < 60
+    _assert_refused(result.returncode, result.stdout, result.stderr, word, folder, before)
 
 
 def test_export_mjcf_writes_a_model_that_compiles(tmp_path, capsys):
@@ -840,6 +885,57 @@ def test_importing_the_package_imports_neither_mujoco_nor_the_environments():
     )
     typed = {alias.name: node.module for node in checked.body for alias in node.names}
     assert typed == microg_env._EXPORTS
+
+
+#: What a usage error, a help or the version must not wait for: the physics, the learning and the plots.
+HEAVY = ("mujoco", "numba", "scipy", "torch", "stable_baselines3", "ray", "matplotlib")
+#: Usage errors that argparse or an option's type raises, as (argv, exit code).
+LIGHT_ERRORS = [
+    (["run", "--height", "-1"], 2),
+    (["run", "--controller", "nope"], 2),
+    (["run", "--pad", "nope"], 2),
+    (["view", "--condition", "4"], 2),
+    (["drop", "--mass", "-1"], 2),
+    (["export-mjcf"], 2),
+    (["reproduce", "--workers", "0"], 2),
+    (["calibrate", "--source", "nope"], 2),
+    (["train", "--algo", "nope"], 2),
+    (["train", "--n-envs", "0"], 2),
+    (["train", "--eval-episodes", "1001"], 2),
+    (["compare", "--seeds", "0"], 2),
+    (["compare", "--randomize", "nope"], 2),
+    (["compare", "--workers", "0"], 2),
+    (["compare", "--refrence", "pid"], 2),
+    (["campaign"], 2),
+    (["--seed", "1"], 2),
+]
+
+
+def test_usage_errors_help_and_version_import_none_of_the_physics():
+    """Building the parser (a bare ``microg`` prints its help), ``--help`` (of ``microg`` and each
+    command), ``--version`` and every usage error that argparse or an option's type raises import
+    none of :data:`HEAVY`, in a process of their own; the first case that imports one is named."""
+    commands = list(cli.build_parser()._subparsers._group_actions[0].choices)
+    cases = [([], 0), (["--help"], 0), (["--version"], 0), *(([c, "--help"], 0) for c in commands), *LIGHT_ERRORS]
+    code = (
+        "import contextlib, io, json, sys\n"
+        "from microg_env.cli import main\n"
+        "for argv in json.loads(sys.argv[1]):\n"
+        "    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):\n"
+        "        try:\n"
+        "            status = main(argv)\n"
+        "        except SystemExit as stop:\n"
+        "            status = stop.code\n"
+        "    heavy = sorted({m.split('.')[0] for m in sys.modules} & set(json.loads(sys.argv[2])))\n"
+        "    print(json.dumps([argv, status, heavy]))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code, json.dumps([argv for argv, _ in cases]), json.dumps(HEAVY)],
+        capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO)}, check=True, timeout=120,
+    )  # fmt: skip
+    results = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [(argv, status) for argv, status, _ in results] == [(argv, status) for argv, status in cases]
+    assert [(argv, heavy) for argv, _, heavy in results if heavy][:1] == []
 
 
 def test_reproduce_without_matplotlib_stops_before_its_runs(monkeypatch, tmp_path, capsys):
