@@ -11,7 +11,7 @@ For each controller it times, interleaved over ``--repeats`` rounds and reportin
 The ratio bare/episode is the environment's throughput as a share of that floor (1: no overhead).
 The residual policy is ``residual-ppo`` (acting every 5 periods on ``feedforward``).
 
-Usage: ``python benchmarks/bench_run.py [--repeats N] [--condition N] [--controllers pid,feedforward]``.
+Usage: ``python benchmarks/bench_run.py [--repeats N] [--condition N] [--controllers pid,feedforward] [--duration S]``.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from microg_env.rollout.episode import run_episode
 from microg_env.sim.model import SLEW_PARAMETER
 
 
-def replay_inputs(env: MicroGravityLandingEnv, controller, seed: int) -> tuple[list, int]:
+def replay_inputs(env: MicroGravityLandingEnv, controller, seed: int, duration_s: float | None) -> tuple[list, int]:
     """The drive inputs written before each control period of one episode, and the steps per period."""
     inputs = []
     core = env.core
@@ -43,7 +43,7 @@ def replay_inputs(env: MicroGravityLandingEnv, controller, seed: int) -> tuple[l
             )
         )
 
-    run_episode(env, controller, seed=seed, on_step=record)
+    run_episode(env, controller, seed=seed, duration_s=duration_s, on_step=record)
     return inputs[1:], env.settings.frame_skip  # the first is the reset's
 
 
@@ -64,17 +64,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--condition", type=int, default=1)
     parser.add_argument("--controllers", default="pid,feedforward,residual-ppo")
+    parser.add_argument("--duration", type=float, default=None, help="cap on the episode, s (default: the condition's)")
     args = parser.parse_args(argv)
     print(f"condition {args.condition}, medians of {args.repeats} interleaved rounds")
     print(f"{'controller':<14}{'episode [s]':>13}{'bare [s]':>10}{'bare/episode':>14}{'steps/s':>10}")
     for name in args.controllers.split(","):
         env = MicroGravityLandingEnv(condition=args.condition)
         controller = make_controller(name, env.settings.control_period_s)
-        inputs, frame_skip = replay_inputs(env, controller, seed=0)
+        inputs, frame_skip = replay_inputs(env, controller, seed=0, duration_s=args.duration)
         episodes, floors = [], []
         for _ in range(args.repeats):
             start = time.perf_counter()
-            run_episode(env, controller, seed=0)
+            run_episode(env, controller, seed=0, duration_s=args.duration)
             episodes.append(time.perf_counter() - start)
             start = time.perf_counter()
             bare(env, inputs, frame_skip)

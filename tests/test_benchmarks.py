@@ -12,7 +12,7 @@ BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 #: Each script with arguments that make it quick (its physics shortened, one repeat).
 SMOKE_ARGS = {
-    "bench_run": ["--repeats", "1", "--controllers", "pid,feedforward"],
+    "bench_run": ["--repeats", "1", "--controllers", "pid,feedforward", "--duration", "2"],
     "bench_batch": ["--sizes", "2", "--periods", "20", "--repeats", "1"],
     "bench_compare": ["--seeds", "1", "--scenarios", "condition-1", "--duration", "0.5", "--timesteps", "512"],
     "bench_reproduce": ["--repeats", "1", "--duration", "0.5"],

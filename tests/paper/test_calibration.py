@@ -84,8 +84,15 @@ def test_pads_by_name():
 
 
 @pytest.mark.slow
-def test_calibrate_json(capsys, fit):
+def test_calibrate_json(capsys, fit, monkeypatch):
+    """``microg calibrate --json`` prints the fit of the source it names (the fit itself is the
+    fixture's: computed once here, as the command computes it)."""
+    import microg_env.paper.calibration as calibration
+
+    asked = []
+    monkeypatch.setattr(calibration, "calibrate", lambda **kwargs: asked.append(kwargs) or fit)
     assert main(["calibrate", "--json"]) == 0
+    assert asked == [{"source": "experiment"}]
     result = json.loads(capsys.readouterr().out)
     assert set(result) == {"stiffness_n_per_m", "damping_n_s_per_m", "residuals"}
     assert set(result["residuals"]) == {"max_deformation_pct", "collision_accel_pct"}
