@@ -342,3 +342,17 @@ def test_a_bad_acting_value_is_refused_by_the_one_check_wherever_it_comes_from(t
     folder = _policy(tmp_path, action_mode="residual", residual_gate_on="setpoint")
     with pytest.raises(ValueError, match=words):
         policy_card(folder)
+
+
+def test_a_policy_controller_refuses_a_base_its_action_mode_does_not_have():
+    """A residual acts on a base controller and a speed command without one: the two disagreeing is
+    refused when the controller is made, not found out in an episode."""
+    from microg_env.controllers.policy import PolicyController
+    from microg_env.task import ActingSettings
+
+    residual = ActingSettings(action_mode="residual", base_controller="feedforward")
+    with pytest.raises(ValueError, match="action_mode 'residual' acts on a base controller, got base NoneType"):
+        PolicyController(object(), residual)
+    with pytest.raises(ValueError, match="action_mode 'speed' acts without a base controller, got base Feedforward"):
+        PolicyController(object(), ActingSettings(), make_controller("feedforward", 1e-3))
+    assert PolicyController(object(), residual, make_controller("feedforward", 1e-3)).acting == residual
