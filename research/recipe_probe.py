@@ -41,10 +41,10 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from microg_env.controllers.feedforward import PLANT_FIELDS, plant_model
-from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy
+from microg_env.controllers.policy import MLPPolicy
 from microg_env.envs.core import Episode
 from microg_env.experiments.comparison import TEST_SEED
-from microg_env.interface import OBSERVATION_INDEX
+from microg_env.interface import CARD_FILE, NETWORK_FILE, OBSERVATION_INDEX
 from microg_env.learning import hyperparams
 from microg_env.learning.export import actor_layers
 from microg_env.learning.vec_env import BatchedVecEnv

@@ -90,8 +90,8 @@ def test_returns_table_reads_a_cards_left_out_acting_key_as_its_default(tmp_path
     import json
     import shutil
 
-    from microg_env.controllers.policy import CARD_FILE
     from microg_env.controllers.registry import shipped_policy_folder
+    from microg_env.interface import CARD_FILE
 
     monkeypatch.syspath_prepend(str(TRAINING))
     returns_table = importlib.import_module("returns_table")

@@ -14,9 +14,9 @@ import shutil
 import sys
 from pathlib import Path
 
-from microg_env.controllers.policy import CARD_FILE
 from microg_env.controllers.registry import policy_card
 from microg_env.files import replace_folder
+from microg_env.interface import CARD_FILE
 
 PACKAGE_POLICIES = Path(__file__).resolve().parents[1] / "microg_env" / "policies"
 #: What travels with a shipped policy: the exported network and card, stable-baselines3's files,

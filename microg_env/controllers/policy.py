@@ -32,7 +32,6 @@ from microg_env import validate
 from microg_env.compiled import jit
 from microg_env.controllers.base import SetpointController, VectorController, tell_plants
 from microg_env.files import atomic_path
-from microg_env.interface import CARD_FILE as CARD_FILE  # a policy folder's files, named here too
 from microg_env.interface import (
     MAX_SPEED_M_S,
     OBSERVATION_INDEX,
@@ -40,7 +39,6 @@ from microg_env.interface import (
     gated_setpoint,
     highpass_gain,
 )
-from microg_env.interface import NETWORK_FILE as NETWORK_FILE
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.task import ActingSettings
 

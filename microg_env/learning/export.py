@@ -10,8 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy
+from microg_env.controllers.policy import MLPPolicy
 from microg_env.files import replace_folder
+from microg_env.interface import CARD_FILE, NETWORK_FILE
 from microg_env.learning.settings import CONTRIB_ALGORITHMS
 
 #: stable-baselines3's files in a policy folder, for fine-tuning and the zoo's ``enjoy``.

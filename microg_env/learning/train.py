@@ -46,9 +46,9 @@ from typing import Any
 
 import numpy as np
 
-from microg_env.controllers.policy import CARD_FILE
 from microg_env.controllers.registry import deployed_controller, make_controller
 from microg_env.files import atomic_path, folder_lock, read_settings_text, read_yaml, replace_folder, write_text
+from microg_env.interface import CARD_FILE
 from microg_env.learning import hyperparams as hp
 from microg_env.learning.export import MODEL_FILE, NORMALIZATION_FILE, write_policy_folder
 from microg_env.learning.settings import (

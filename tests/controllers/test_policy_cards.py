@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from microg_env.cli import main
-from microg_env.controllers.policy import CARD_FILE, NETWORK_FILE, MLPPolicy
+from microg_env.controllers.policy import MLPPolicy
 from microg_env.controllers.registry import (
     check_controller_name,
     check_policy_folder,
@@ -25,7 +25,7 @@ from microg_env.controllers.registry import (
     shipped_policies,
     shipped_policy_folder,
 )
-from microg_env.interface import OBSERVATION_INDEX, SENSOR_SETS
+from microg_env.interface import CARD_FILE, NETWORK_FILE, OBSERVATION_INDEX, SENSOR_SETS
 from microg_env.rollout.spec import RunSpec
 from microg_env.task import ACTING_KEYS
 
