@@ -233,13 +233,18 @@ class DomainRandomization:
     def sample(
         self, params: RigParams, loads_kg: tuple[float, ...], rng: np.random.Generator
     ) -> tuple[RigParams, tuple[float, ...]]:
-        """A perturbed copy of ``params`` and of the test weights ``loads_kg``."""
+        """A perturbed copy of ``params`` and of the test weights ``loads_kg``.
 
-        def scale(width: float) -> float:
-            return float(rng.uniform(1.0 - width, 1.0 + width))
+        The plant comes from a child of ``rng`` (``rng.spawn``), the weights from ``rng`` itself: a
+        seed draws one plant whatever its schedule (its number of weights, or what a sampler drew
+        before), so schedules run from different seeds meet different plants."""
+        plant = rng.spawn(1)[0]
 
-        loads = tuple(mass * scale(self.load_mass) for mass in loads_kg)
-        lander = replace(params.lander, mass_kg=float(rng.uniform(*self._lander_range(params))))
+        def scale(width: float, source: np.random.Generator = plant) -> float:
+            return float(source.uniform(1.0 - width, 1.0 + width))
+
+        loads = tuple(mass * scale(self.load_mass, rng) for mass in loads_kg)
+        lander = replace(params.lander, mass_kg=float(plant.uniform(*self._lander_range(params))))
         pad = replace(
             params.pad,
             stiffness_n_per_m=params.pad.stiffness_n_per_m * scale(self.pad_stiffness),
@@ -256,12 +261,12 @@ class DomainRandomization:
             guide_friction_n=params.qzs.guide_friction_n * f,
             guide_static_friction_n=params.qzs.guide_static_friction_n * f,
         )
-        drive: dict[str, float] = {}  # drawn only where on: the draws above stay those of older versions
+        drive: dict[str, float] = {}  # drawn only where on, after the plant: the defaults' plant stays the same
         if self.cogging:
             drive["cogging_torque_n_m"] = servo.cogging_torque_n_m * scale(self.cogging)
         if self.cogging_phase:
             width = self.cogging_phase * math.pi
-            drive["cogging_phase_rad"] = servo.cogging_phase_rad + float(rng.uniform(-width, width))
+            drive["cogging_phase_rad"] = servo.cogging_phase_rad + float(plant.uniform(-width, width))
         if self.lugre:
             drive["bristle_stiffness_n_m_per_rad"] = servo.bristle_stiffness_n_m_per_rad * scale(self.lugre)
             drive["bristle_damping_n_m_s_per_rad"] = servo.bristle_damping_n_m_s_per_rad * scale(self.lugre)

@@ -285,9 +285,11 @@ VALIDATION_SAMPLER = ScenarioSampler(
 
 #: Test schedules held out of training and validation, beside the paper's conditions; each lies
 #: outside both samplers' draws in its start height and at least one of impact speed, load and
-#: number of weights (``ScenarioSampler.outside``, pinned by a test): a second weight heavier than
-#: any drawn (1.4 kg), a light first weight with a long free fall, an impact faster than any draw
-#: (1.5 kg from 90 mm, 65 mm/s against at most 48 mm/s), and three weights.
+#: number of weights (``ScenarioSampler.outside``, pinned by a test). Together they span impacts of
+#: 17-65 mm/s (training draws at most 48 mm/s), weights of 0.1-2 kg (training: 0.05-1 kg), starts
+#: of 55-120 mm (training 3-30 mm, validation 30-50 mm) and one to four weights (training: two):
+#: a second weight heavier than any drawn, a light weight with a long free fall, a fast impact, three
+#: weights, the heaviest single weight, four weights, the highest start, and a heavy first weight.
 HELD_OUT: dict[str, Scenario] = {
     "heavy-second": Scenario(
         "heavy-second", (LoadStep(0.3), LoadStep(1.4, height_m=0.02)), descent_height_m=0.07, duration_s=10.0
@@ -299,6 +301,19 @@ HELD_OUT: dict[str, Scenario] = {
         (LoadStep(0.1), LoadStep(0.6, height_m=0.04), LoadStep(1.2, height_m=0.015)),
         descent_height_m=0.06,
         duration_s=10.0,
+    ),
+    "heavy-single": Scenario("heavy-single", (LoadStep(2.0),), descent_height_m=0.055, duration_s=5.0),
+    "four-stage": Scenario(
+        "four-stage",
+        (LoadStep(0.2), LoadStep(0.3, height_m=0.05), LoadStep(0.4, height_m=0.03), LoadStep(0.5, height_m=0.012)),
+        descent_height_m=0.08,
+        duration_s=9.0,
+    ),
+    "high-start": Scenario(
+        "high-start", (LoadStep(0.7), LoadStep(0.5, height_m=0.03)), descent_height_m=0.12, duration_s=7.0
+    ),
+    "heavy-first": Scenario(
+        "heavy-first", (LoadStep(1.3), LoadStep(0.1, height_m=0.03)), descent_height_m=0.065, duration_s=5.0
     ),
 }
 

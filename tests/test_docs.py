@@ -30,6 +30,20 @@ def test_the_docs_site_builds_strictly(tmp_path):
         assert (tmp_path / "site" / page / "index.html").is_file()
 
 
+@pytest.mark.slow
+def test_the_readmes_example_lands_condition_3_under_the_paper_s_pid(capsys):
+    """The README's Python example runs a whole episode, as it says: condition 3's 30 s end by the
+    schedule, not at a stroke limit, with x within a few µm (random speed commands once ended it at
+    the guide's end after 0.2 s)."""
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
+    assert len(blocks) == 1
+    exec(compile(blocks[0], "README.md", "exec"), {})  # the repository's own example
+    time_s, x_m = (float(value) for value in capsys.readouterr().out.split())
+    assert time_s == pytest.approx(30.0)
+    assert 0 < abs(x_m) < 5e-6
+
+
 def test_the_readme_is_a_short_front_door_whose_links_resolve():
     text = (REPO / "README.md").read_text(encoding="utf-8")
     assert len(text.split()) <= 800

@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 TRAINING = Path(__file__).resolve().parents[1] / "training"
@@ -44,8 +45,8 @@ def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(mo
     assert select_seed.main(["--episodes", "8", str(runs[0])]) == 0
     out = capsys.readouterr().out
     assert out.startswith("8 validation episodes, seeds 500-507, sensor set extended\n")
-    assert "| zero residual (adaptive) |  | 0.0982 | 0.0070 | 0.912 | 1.000x | 1.941 | 0.458 |" in out
-    assert f"| {runs[0]} | 1 | 0.0866 | 0.0098 | 0.768 | 0.843x | 1.754 | 0.332 |" in out
+    assert "| zero residual (adaptive) |  | 0.1367 | 0.0134 | 1.234 | 1.000x | 3.939 | 0.508 |" in out
+    assert f"| {runs[0]} | 1 | 0.1195 | 0.0129 | 1.066 | 0.864x | 3.529 | 0.372 |" in out
     assert out.strip().endswith(f"lowest selection cost: {runs[0]}")
     lines = {}
     for rig in ("extended", "paper"):  # --sensor-set: the same episodes on another rig
@@ -70,7 +71,7 @@ def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):
     row runs."""
     monkeypatch.syspath_prepend(str(TRAINING))
     returns_table = importlib.import_module("returns_table")
-    newest_first = tuple(f"MicroGravityLanding-Residual-v{v}" for v in (6, 5, 4, 3, 2, 1))
+    newest_first = tuple(f"MicroGravityLanding-Residual-v{v}" for v in (7, 6, 5, 4, 3, 2, 1))
     assert newest_first == returns_table.ENV_IDS
     returns_table.policy_actor("MicroGravityLanding-Residual-v4", "residual-sac-adaptive")
     returns_table.policy_actor("MicroGravityLanding-Residual-v6", "residual-sac-setpoint")
@@ -108,3 +109,38 @@ def test_returns_table_reads_a_cards_left_out_acting_key_as_its_default(tmp_path
         ValueError, match="trained with residual_gate_on 'setpoint', not MicroGravityLanding-Residual-v5's 'action'"
     ):
         returns_table.policy_actor("MicroGravityLanding-Residual-v5", str(folder))
+
+
+@pytest.mark.slow
+def test_the_aligned_residual_task_ranks_the_ladder_as_its_metric_does(monkeypatch):
+    """training/reward_ladder.py on 6 of v7's draws: its return ranks the nine rungs as x at the
+    collision does (Spearman >= 0.9), where v6's x0 of 10 nm does not, on the same rollouts. The
+    return it scores offline from x at every period is the one the environment pays (the zero
+    residual and the shipped policy, on the first seed and on one whose last step is short)."""
+    import gymnasium as gym
+
+    from microg_env.task import TaskSettings
+
+    monkeypatch.syspath_prepend(str(TRAINING))
+    ladder = importlib.import_module("reward_ladder")
+    returns_table = importlib.import_module("returns_table")
+    ids, policy = ("MicroGravityLanding-Residual-v6", "MicroGravityLanding-Residual-v7"), "residual-sac-setpoint"
+    scales = [gym.spec(env_id).kwargs.get("reward_scale_m", TaskSettings().reward_scale_m) for env_id in ids]
+    assert scales == [1e-8, 1e-6]
+    rungs = ladder.run_ladder(ids[1], policy, range(1000, 1006))
+    assert len(rungs) == 9
+    result = ladder.report(ids[1], policy, rungs, scales)["by_scale"]
+    assert result["1e-08"]["spearman"] < 0.9
+    assert result["1e-06"]["spearman"] >= ladder.MIN_SPEARMAN
+    env = gym.make(ids[1])
+    by_name = {rung.name: rung for rung in rungs}
+    # the first seed whose last step runs fewer than 5 periods (the environment pays their mean)
+    short = next(i for i, x in enumerate(by_name[f"{policy} x1"].x_m) if x.size % 5)
+    for name, act in (
+        ("adaptive-dither (zero residual)", lambda obs: np.zeros(1, dtype=np.float32)),
+        (f"{policy} x1", returns_table.policy_actor(ids[1], policy)),
+    ):
+        offline = by_name[name].returns(1e-6, env.unwrapped.core.x_limit_m, 5, contact_only=False)
+        for i in (0, short):
+            assert offline[i] == pytest.approx(returns_table.episode_return(env, act, 1000 + i), rel=1e-9), (name, i)
+    assert ladder.spearman([1, 2, 3, 4], [10, 20, 30, 25]) == pytest.approx(0.8)

@@ -1,10 +1,10 @@
-"""The returns table of the learning task (MicroGravityLanding-Residual-v6 to -v1): what each controller earns.
+"""The returns table of the learning task (MicroGravityLanding-Residual-v7 to -v1): what each controller earns.
 
 Every controller runs in the residual environment with the id's defaults (a residual x setpoint on
 `adaptive`, held 5 control periods: +-1 um in v1, +-3 um high-passed at 2 Hz in v2, twice in v3,
 the absolute positions hidden from the agent in v4; v5 on `adaptive-dither`, gated to the contact,
-the agent reading the paper's sensors; v6 gated on the high-passed setpoint; plants and drives drawn by
-``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero
+the agent reading the paper's sensors; v6 gated on the high-passed setpoint; v7 scored at x0 =
+1 um; plants and drives drawn by ``DomainRandomization.full()``): ``random`` (uniform residuals), ``zero
 residual`` (the id's base alone), the other classical controllers as the base with a zero residual
 (an all-zero residual is exactly its base) and learned policies (shipped names or policy folders
 trained on this task). A

@@ -78,8 +78,8 @@ def add_commands(commands) -> None:
         description="Expand a YAML campaign (a base run spec, a sweep: grid of parameters, samples: drawn from "
         "distributions, seeds:) into runs and run them on Ray: a local instance on this machine's cores, or a "
         "cluster with --address. One row per run goes to DIR/runs/ as runs finish; re-running the same command "
-        "skips the runs already stored; a run that raises is stored with its error. DIR/results.parquet is the "
-        "campaign's table; a campaign with report: writes DIR/report.md and its figures.",
+        "skips the runs this microg version already stored; a run that raises is stored with its error. "
+        "DIR/results.parquet is the campaign's table; a campaign with report: writes DIR/report.md and its figures.",
     )
     campaign.add_argument("spec", metavar="SPEC.yml", help="the campaign file (studies/ holds examples)")
     campaign.add_argument(

@@ -18,7 +18,13 @@ from microg_env.cli.common import (
     progress_bar,
     seed_number,
 )
-from microg_env.experiments.comparison_settings import MAX_SEEDS, MAX_WORKERS, TEST_SEED
+from microg_env.experiments.comparison_settings import (
+    CONFIRMATION_SEED,
+    MAX_SEEDS,
+    MAX_WORKERS,
+    TEST_SEED,
+    scenario_seeds,
+)
 from microg_env.imperfections import PRESETS
 from microg_env.interface import CONTROLLER_NAMES
 from microg_env.learning.settings import (
@@ -123,11 +129,6 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             check_controller_name(name, args.sensors)
         except ValueError as error:
             raise ValueError(f"--controllers: {error}") from None
-    last = args.first_seed + args.seeds - 1
-    if last > MAX_SEED:
-        raise ValueError(
-            f"--first-seed: {args.first_seed} with --seeds {args.seeds} runs seed {last}, above {MAX_SEED}"
-        )
     labels = dict(args.label)
     if len(labels) < len(args.label):
         raise ValueError(f"--label: a name is given twice ({', '.join(name for name, _ in args.label)})")
@@ -143,6 +144,15 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     for name in scenarios:
         if name not in known:
             raise ValueError(f"--scenarios: scenario must be one of {', '.join(known)}, got {name!r}")
+    if args.confirmation and args.first_seed is not None:
+        raise ValueError(f"--confirmation: runs the seeds from {CONFIRMATION_SEED}; give it or --first-seed, not both")
+    first_seed = CONFIRMATION_SEED if args.confirmation else TEST_SEED if args.first_seed is None else args.first_seed
+    last = max(scenario_seeds(name, first_seed, args.seeds)[-1] for name in scenarios)
+    if last > MAX_SEED:
+        raise ValueError(
+            f"--first-seed: {first_seed} with --seeds {args.seeds} runs seed {last} (each scenario its own block of "
+            f"{MAX_SEEDS}), above {MAX_SEED}"
+        )
     if args.out is not None:
         comparison_report.figure_class()  # fail now, not after the runs, if matplotlib is missing
         comparison_report.check_output(args.out)
@@ -152,7 +162,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             controllers,
             scenarios,
             seeds=args.seeds,
-            first_seed=args.first_seed,
+            first_seed=first_seed,
             randomize={None: False, "plant": True}.get(args.randomize, args.randomize),
             duration_s=args.duration,
             reference=reference,
@@ -247,9 +257,14 @@ def add_commands(commands) -> None:
     compare.add_argument(
         "--first-seed",
         type=seed_number,
-        default=TEST_SEED,
         metavar="S",
-        help=f"first seed (default {TEST_SEED}, above training's and validation's)",
+        help=f"first seed (default {TEST_SEED}, above training's and validation's); scenario k of the list above "
+        f"runs its own seeds from S + k * {MAX_SEEDS}",
+    )
+    compare.add_argument(
+        "--confirmation",
+        action="store_true",
+        help=f"run the confirmation seeds (from {CONFIRMATION_SEED}): once per release, after every design decision",
     )
     compare.add_argument(
         "--randomize",

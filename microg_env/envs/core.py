@@ -193,6 +193,8 @@ class LandingCore:
         self.observation = np.zeros((n, len(SCALES)), dtype=np.float32)
         self.steps = np.zeros(n, dtype=np.int64)
         self.max_steps = np.zeros(n, dtype=np.int64)
+        #: Most control periods an episode runs whatever its schedule (a vector env's ``max_episode_steps``).
+        self.period_limit = MAX_CONTROL_STEPS
         self.next_load = np.zeros(n, dtype=np.int64)
         self.placed = np.zeros((n, len(rig.load_bodies)), dtype=bool)
         self.placed_load_kg = np.zeros(n)
@@ -326,7 +328,8 @@ class LandingCore:
                 unit.balancer_force_n * episode.drift_rate_k_per_s / episode.params.drift.gas_temperature_k
             )
             self.x_stiffness[i] = unit.x_stiffness_n_per_m
-            self.max_steps[i] = round(episode.scenario.duration_s / self.settings.control_period_s)
+            periods = round(episode.scenario.duration_s / self.settings.control_period_s)
+            self.max_steps[i] = min(periods, self.period_limit)
             self.reference_weight_n[i] = episode.scenario.loads[0].mass_kg * episode.params.gravity_m_s2
             self.gravity[i] = episode.params.gravity_m_s2
             self.trim_height_m[i] = episode.height_m

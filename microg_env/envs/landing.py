@@ -183,11 +183,6 @@ class MicroGravityLandingEnv(gym.Env):
         if render_mode == "human":
             _check_display()
         self.render_mode = render_mode
-        self._render_size = (
-            validate.integer("width", width, 1, MAX_RENDER_PIXELS),
-            validate.integer("height", height, 1, MAX_RENDER_PIXELS),
-        )
-        self._camera_name = validate.instance("camera_name", camera_name, str)
         self._renderer = None
         self.core = LandingCore(1, TaskSettings(**settings))
         core = self.core
@@ -200,14 +195,7 @@ class MicroGravityLandingEnv(gym.Env):
         self._human_every = max(1, round(1.0 / (60.0 * self.dt)))
         self.action_space = action_space()
         self.observation_space = observation_space()
-        model = self.model
-        if camera_name not in {model.camera(i).name for i in range(model.ncam)}:
-            cameras = ", ".join(model.camera(i).name for i in range(model.ncam))
-            raise ValueError(f"camera_name must be one of the model's cameras ({cameras}), got {camera_name!r}")
-        if render_mode == "rgb_array":
-            offscreen = (model.vis.global_.offwidth, model.vis.global_.offheight)
-            for name, size, most in zip(("width", "height"), self._render_size, offscreen, strict=True):
-                validate.integer(name, size, 1, most)
+        self._render_size, self._camera_name = render_settings(self.model, render_mode, width, height, camera_name)
 
     # -- the rig as it is now ------------------------------------------------------------------
 
@@ -292,6 +280,26 @@ class MicroGravityLandingEnv(gym.Env):
         state = self.__dict__.copy()
         state["_renderer"] = None
         return state
+
+
+def render_settings(
+    model, render_mode: str | None, width: int, height: int, camera_name: str
+) -> tuple[tuple[int, int], str]:
+    """The checked (width, height) and camera of a rendering of ``model``: a size in pixels that,
+    offscreen, fits its offscreen buffer, and one of its cameras."""
+    size = (
+        validate.integer("width", width, 1, MAX_RENDER_PIXELS),
+        validate.integer("height", height, 1, MAX_RENDER_PIXELS),
+    )
+    validate.instance("camera_name", camera_name, str)
+    if camera_name not in {model.camera(i).name for i in range(model.ncam)}:
+        cameras = ", ".join(model.camera(i).name for i in range(model.ncam))
+        raise ValueError(f"camera_name must be one of the model's cameras ({cameras}), got {camera_name!r}")
+    if render_mode == "rgb_array":
+        offscreen = (model.vis.global_.offwidth, model.vis.global_.offheight)
+        for name, pixels, most in zip(("width", "height"), size, offscreen, strict=True):
+            validate.integer(name, pixels, 1, most)
+    return size, camera_name
 
 
 def _check_display() -> None:

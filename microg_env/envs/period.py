@@ -29,11 +29,12 @@ def x_reward(x_m: float, scale_m: float, limit_m: float) -> float:
 
     In decades: it falls by the same amount for each decade that x grows, from ``scale`` (x's noise
     floor) to ``limit`` (the guide's half stroke), so it keeps a gradient from millimetres down to
-    nanometres; it is 1 at x = 0 and 0 at the guide's end, never negative, so an episode that ends
-    early only forgoes what it would have earned. A NumPy ufunc: scalars or arrays.
+    nanometres; it is 1 at x = 0 and 0 at the guide's end and beyond (the period that overruns the
+    guide pays 0, never less), so an episode that ends early only forgoes what it would have earned.
+    A NumPy ufunc: scalars or arrays.
     """
     ratio, top = x_m / scale_m, limit_m / scale_m
-    return 1.0 - np.log1p(ratio * ratio) / np.log1p(top * top)
+    return max(1.0 - np.log1p(ratio * ratio) / np.log1p(top * top), 0.0)
 
 
 @jit
@@ -158,7 +159,7 @@ def observe(
         )
         reward[i] = reward_x[i]
         if descent_weight > 0.0:
-            score = max(x_reward(error, descent_scale_m_s, descent_limit_m_s), 0.0)
+            score = x_reward(error, descent_scale_m_s, descent_limit_m_s)
             reward[i] = (1.0 - descent_weight) * reward_x[i] + descent_weight * score
         code = 0
         if screw + x <= floor_m:

@@ -11,9 +11,12 @@ for observation, and its observations, rewards, terminations, truncations and in
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
+import gymnasium as gym
+import mujoco
 import numpy as np
 from gymnasium.error import ResetNeeded
 from gymnasium.utils import seeding
@@ -22,18 +25,22 @@ from gymnasium.vector.utils import batch_space
 
 from microg_env import validate
 from microg_env.envs.core import INFO_KEYS, LandingCore, check_actions
+from microg_env.envs.landing import render_settings
 from microg_env.interface import action_space, observation_space
 from microg_env.scenarios import Scenario
 from microg_env.task import TaskSettings
 
 #: Most rigs one vector environment steps (a batch's memory grows with it).
 MAX_RIGS = 4096
+#: A geom group MuJoCo's default visual options do not draw (they draw groups 0-2).
+HIDDEN_GEOM_GROUP = 5
 
 
 class MicroGravityLandingVectorEnv(VectorEnv):
     """N rigs of ``MicroGravityLanding-v1`` on ``mujoco.batch.Batch``.
 
-    Takes the single environment's keyword arguments (no rendering) and:
+    Takes the single environment's keyword arguments (rendering "rgb_array" only: ``render()``
+    gives one frame per rig, Gymnasium's vector layout) and:
 
     | argument | default | meaning |
     |---|---|---|
@@ -41,13 +48,14 @@ class MicroGravityLandingVectorEnv(VectorEnv):
     | ``autoreset_mode`` | ``NEXT_STEP`` | Gymnasium's ``AutoresetMode`` (or ``"NextStep"``, ``"SameStep"``...) |
     | ``scenarios`` | None | one ``Scenario`` per rig (instead of ``scenario``/``condition``) |
     | ``nthread`` | 0 | threads stepping the batch (0: every core) |
+    | ``max_episode_steps`` | None | most steps an episode runs (``gym.make_vec`` passes the id's), as ``TimeLimit`` |
 
     ``reset(seed=s)`` seeds rig i with s + i (a list gives one seed per rig); each rig keeps its own
     generator through autoresets, as the single environments of a ``SyncVectorEnv`` do.
     ``options={"reset_mask": mask}`` resets only the rigs ``mask`` selects.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(
         self,
@@ -55,14 +63,17 @@ class MicroGravityLandingVectorEnv(VectorEnv):
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         scenarios: Sequence[Scenario] | None = None,
         nthread: int = 0,
-        render_mode: None = None,
+        render_mode: str | None = None,
+        width: int = 640,
+        height: int = 480,
+        camera_name: str = "side",
+        max_episode_steps: int | None = None,
         **kwargs: Any,
     ) -> None:
         self.num_envs = validate.integer("num_envs", num_envs, 1, MAX_RIGS)
         if render_mode is not None:
-            raise ValueError(
-                f"render_mode {render_mode!r}: the vector environment does not render; render a single env"
-            )
+            validate.choice("render_mode", render_mode, tuple(self.metadata["render_modes"]))
+        self._renderer = None
         try:
             self.autoreset_mode = AutoresetMode(autoreset_mode)
         except ValueError:
@@ -70,9 +81,16 @@ class MicroGravityLandingVectorEnv(VectorEnv):
             raise ValueError(f"autoreset_mode must be one of {modes}, got {autoreset_mode!r}") from None
         nthread = validate.integer("nthread", nthread, 0, 1024)
         self.core = LandingCore(self.num_envs, TaskSettings(**kwargs), scenarios, batched=True, nthread=nthread)
+        if max_episode_steps is not None:  # as gym.make's TimeLimit: an episode ends at that many steps
+            steps = validate.integer("max_episode_steps", max_episode_steps, 1)
+            self.core.period_limit = min(steps * self.core.settings.decision_period, self.core.period_limit)
         self.settings = self.core.settings
+        self._render_size, self._camera_name = render_settings(
+            self.core.physics.model, render_mode, width, height, camera_name
+        )
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
-        self.render_mode = None
+        self.metadata["render_fps"] = round(1.0 / (self.settings.control_period_s * self.settings.decision_period))
+        self.render_mode = render_mode
         self.single_action_space = action_space()
         self.single_observation_space = observation_space()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -185,5 +203,33 @@ class MicroGravityLandingVectorEnv(VectorEnv):
             info[f"_{key}"] = mask.copy()
         return info
 
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """One RGB frame per rig, (height, width, 3) uint8, from ``camera_name``: each rig's
+        positions and its weights' colours (a weight not yet placed drawn faint) written into one
+        offscreen scene in turn."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode to gym.make_vec")
+            return None
+        physics = self.core.physics
+        if self._renderer is None:
+            model = copy.deepcopy(physics.model)  # its colours change per rig; the batch's model stays
+            width, height = self._render_size
+            self._renderer = (model, mujoco.MjData(model), mujoco.Renderer(model, height=height, width=width))
+        model, data, renderer = self._renderer
+        colours, groups = physics.field("geom_rgba"), physics.model.geom_group
+        frames = []
+        for rig in range(self.num_envs):
+            data.qpos[:] = physics.qpos[rig]
+            model.geom_rgba[:] = colours[rig]
+            # a weight beyond the rig's schedule (alpha 0) would still cast a shadow: a hidden group
+            model.geom_group[:] = np.where(colours[rig][:, 3] == 0.0, HIDDEN_GEOM_GROUP, groups)
+            mujoco.mj_fwdPosition(model, data)
+            renderer.update_scene(data, camera=self._camera_name)
+            frames.append(renderer.render())
+        return tuple(frames)
+
     def close_extras(self, **kwargs: Any) -> None:
-        """Nothing to free beyond the batch, which goes with the environment."""
+        """The renderer, if any; the batch goes with the environment."""
+        if self._renderer is not None:
+            self._renderer[2].close()
+            self._renderer = None

@@ -4,8 +4,9 @@ Each case (controller, scenario, seed) is one run (:class:`~microg_env.rollout.s
 of ``MicroGravityLanding-v1`` with the speed action, every imperfection on and, with
 ``randomize``, the domain randomisation's plant (and with "full" or "wider" its drive) drawn from the seed,
 so every controller meets the same plant, noise and drift. The scenarios are held out of training
-(:func:`microg_env.scenarios.comparison_scenarios`) and the seeds start at :data:`TEST_SEED`,
-above every training and validation seed. The cases run through
+(:func:`microg_env.scenarios.comparison_scenarios`); each runs its own block of seeds
+(:func:`~microg_env.experiments.comparison_settings.scenario_seeds`, from :data:`TEST_SEED`, above
+every training and validation seed), so each episode meets a plant of its own. The cases run through
 :func:`microg_env.rollout.runner.run_many`: as rigs of ``mujoco.batch`` batches (``workers``
 threads), each controller driving its rigs in one vectorised call, the ideal references in
 ``workers`` processes. Each case keeps its metrics and, for the first seed, x around the touchdown.
@@ -25,7 +26,7 @@ from microg_env.analysis.metrics import COMPARED_WINDOW, RunMetrics, contacts
 from microg_env.analysis.paired import Paired, paired
 from microg_env.analysis.summary import Summary, finite_mean, summarise
 from microg_env.controllers.registry import check_controller_name, controller_digest
-from microg_env.experiments.comparison_settings import MAX_SEEDS, MAX_WORKERS, TEST_SEED
+from microg_env.experiments.comparison_settings import MAX_SEEDS, MAX_WORKERS, TEST_SEED, scenario_seeds
 from microg_env.interface import CONTROLLER_NAMES
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.rollout.runner import run_many
@@ -108,7 +109,7 @@ class Comparison:
 
     controllers: tuple[str, ...]
     scenarios: dict[str, Scenario]
-    seeds: tuple[int, ...]
+    seeds: dict[str, tuple[int, ...]]  # each scenario's own seeds (scenario_seeds)
     randomize: bool | str  # False, True (the plant), "full" (the plant and the drive) or "wider"
     control_period_s: float
     duration_s: float | None
@@ -149,12 +150,26 @@ class Comparison:
         runs = self.runs(controller, scenario)
         return summarise([r.values for r in runs], lambda values: values[quantity])
 
-    def paired(self, controller: str, quantity: str, reference: str | None = None) -> Paired:
+    @property
+    def first_seed(self) -> int:
+        """The first seed of the seed range: the k-th scenario of ``comparison_scenarios()`` runs
+        its block from ``first_seed + k * MAX_SEEDS``."""
+        name = next(iter(self.scenarios))
+        return self.seeds[name][0] - (scenario_seeds(name, 0, 1)[0])
+
+    @property
+    def seeds_per_scenario(self) -> int:
+        return len(next(iter(self.seeds.values())))
+
+    def paired(
+        self, controller: str, quantity: str, reference: str | None = None, scenario: str | None = None
+    ) -> Paired:
         """``controller`` against ``reference`` (default :attr:`reference`) on the same scenarios and
-        seeds (:mod:`microg_env.analysis.paired`, resampling and testing by seed)."""
+        seeds, or on ``scenario``'s alone (:mod:`microg_env.analysis.paired`, resampling and testing
+        by seed: a seed is one episode, on a plant of its own)."""
         reference = self.reference if reference is None else reference
-        theirs = {(r.case.scenario, r.case.seed): r.values[quantity] for r in self.runs(reference)}
-        ours = [r for r in self.runs(controller) if (r.case.scenario, r.case.seed) in theirs]
+        theirs = {(r.case.scenario, r.case.seed): r.values[quantity] for r in self.runs(reference, scenario)}
+        ours = [r for r in self.runs(controller, scenario) if (r.case.scenario, r.case.seed) in theirs]
         return paired(
             [r.values[quantity] for r in ours],
             [theirs[(r.case.scenario, r.case.seed)] for r in ours],
@@ -188,7 +203,7 @@ class Comparison:
                 }
                 for name, s in self.scenarios.items()
             },
-            "seeds": list(self.seeds),
+            "seeds": {name: list(seeds) for name, seeds in self.seeds.items()},
             "randomize": self.randomize,
             "control_period_s": self.control_period_s,
             "quantities": {
@@ -275,12 +290,12 @@ def compare(
         )
     validate.integer("seeds", seeds, 1, MAX_SEEDS)
     workers = validate.integer("workers", workers, 1, MAX_WORKERS)
-    seed_list = tuple(range(first_seed, first_seed + seeds))
-    cases = [Case(c, s, seed) for s in names for seed in seed_list for c in controllers]
+    seed_lists = {name: scenario_seeds(name, first_seed, seeds) for name in names}
+    cases = [Case(c, s, seed) for s in names for seed in seed_lists[s] for c in controllers]
     comparison = Comparison(
         tuple(controllers),
         {s: known[s] for s in names},
-        seed_list,
+        seed_lists,
         randomize,
         control_period_s,
         duration_s,
@@ -308,6 +323,7 @@ def compare(
         for i, result in batch:  # only the batch's trajectories are held, never every run's
             if not result.ok:
                 raise ValueError(f"{cases[i].controller} on {cases[i].scenario}, seed {cases[i].seed}: {result.error}")
-            results[i] = _result(cases[i], result.metrics, result.trajectory, keep_x=cases[i].seed == seed_list[0])
+            first = cases[i].seed == seed_lists[cases[i].scenario][0]
+            results[i] = _result(cases[i], result.metrics, result.trajectory, keep_x=first)
     comparison.results.extend(results)
     return comparison

@@ -14,6 +14,7 @@ from microg_env.analysis.formatting import format_number
 from microg_env.analysis.paired import Paired
 from microg_env.analysis.plots import figure_class, save_figure
 from microg_env.experiments.comparison import QUANTITIES, X_WINDOW_S, Comparison
+from microg_env.experiments.comparison_settings import CONFIRMATION_SEED
 from microg_env.files import check_output_folder, replace_folder
 
 #: What a comparison folder holds.
@@ -54,6 +55,12 @@ def _paired_cell(p: Paired) -> str:
     return f"{p.ratio:.3g} [{p.ratio_low:.3g}, {p.ratio_high:.3g}], wins {p.wins:.0%}, p = {p.sign_p:.2g}"
 
 
+def _ratio_cell(p: Paired) -> str:
+    if not p.episodes:
+        return "-"
+    return f"{p.ratio:.3g} [{p.ratio_low:.3g}, {p.ratio_high:.3g}], p = {p.sign_p:.2g}"
+
+
 def render_markdown(c: Comparison) -> str:
     """The headline table (mean ± std (worst) over scenarios and seeds), ratios to the PID, and the
     per-scenario means."""
@@ -65,17 +72,27 @@ def render_markdown(c: Comparison) -> str:
         "wider": "randomised plants and drives from ranges 1.5 times wider than training's (lander, pad, friction, "
         "weights, cogging, motor friction law, speed loop, torque filter drawn from each seed)",
     }[c.randomize]
-    lines = [
-        "# Controller comparison",
-        "",
-        f"Controllers {', '.join(c.controllers)} on the same scenarios and seeds ({c.seeds[0]}-{c.seeds[-1]}, "
-        f"{len(c.seeds)} per scenario), {plant}, every imperfection on, {SENSORS[c.sensor_set]}, control period "
+    lines = ["# Controller comparison", ""]
+    if c.first_seed == CONFIRMATION_SEED:
+        lines += [
+            "These are the confirmation seeds: run once per release, after every design decision, never to make one.",
+            "",
+        ]
+    own_plant = ", so each episode meets a plant of its own" if c.randomize else ""
+    lines += [
+        f"Controllers {', '.join(c.controllers)} on the same scenarios and seeds "
+        f"({_count(c.seeds_per_scenario, 'seed')} per scenario, each scenario its own{own_plant}), {plant}, "
+        f"every imperfection on, {SENSORS[c.sensor_set]}, control period "
         f"{c.control_period_s * 1e6:g} us. Every scenario is held out of training:",
         "",
     ]
     for name, scenario in c.scenarios.items():
         duration = scenario.duration_s if c.duration_s is None else min(scenario.duration_s, c.duration_s)
-        lines.append(f"- `{name}`: {scenario.loads_text}; from {scenario.descent_height_m * 1e3:g} mm; {duration:g} s")
+        seeds = c.seeds[name]
+        lines.append(
+            f"- `{name}`: {scenario.loads_text}; from {scenario.descent_height_m * 1e3:g} mm; {duration:g} s; "
+            f"seeds {seeds[0]}-{seeds[-1]}"
+        )
     lines += [
         "",
         "Mean ± std (worst) over every scenario and seed; failures are episodes ended at a stroke limit.",
@@ -116,6 +133,20 @@ def render_markdown(c: Comparison) -> str:
             if controller != c.reference:
                 cells = [_paired_cell(c.paired(controller, name)) for name in QUANTITIES]
                 lines.append(f"| {controller} | " + " | ".join(cells) + " |")
+    if c.reference is not None and len(c.controllers) > 1 and len(c.scenarios) > 1:
+        quantity = QUANTITIES["collision_excursion_m"]
+        lines += [
+            "",
+            f"{quantity.label}, paired against `{c.reference}` per scenario: ratio of means [95 % interval] and "
+            "the sign test's p:",
+            "",
+            "| controller | " + " | ".join(f"`{s}`" for s in c.scenarios) + " |",
+            "|---|" + "---|" * len(c.scenarios),
+        ]
+        for controller in c.controllers:
+            if controller != c.reference:
+                cells = [_ratio_cell(c.paired(controller, "collision_excursion_m", scenario=s)) for s in c.scenarios]
+                lines.append(f"| {controller} | " + " | ".join(cells) + " |")
     for name in ("collision_excursion_m", "compensation_error"):
         quantity = QUANTITIES[name]
         lines += [
@@ -131,7 +162,7 @@ def render_markdown(c: Comparison) -> str:
     lines += [
         "",
         f"Figures: `x_landing.png` (the peak |x| in each {PEAK_WINDOW_S * 1e3:g} ms around the first touchdown, "
-        "first seed), `metrics.png` (each metric's "
+        "each scenario's first seed), `metrics.png` (each metric's "
         f"ratio to `{plot_reference(c)}`'s on the same episodes, with its 95 % interval; a ratio beyond "
         f"{OFF_SCALE:g} is an arrow with its value, an interval running past the panel ends in one). Every case's "
         "values: `comparison.json`.",
@@ -198,7 +229,7 @@ def render_figures(c: Comparison) -> dict[str, object]:
         axes[0].legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("time from the first touchdown [s]")
     axes[-1].set_xlim(*X_WINDOW_S)
-    landing.suptitle(f"x during the landing, seed {c.seeds[0]}{PLANT_TITLES[c.randomize]}")
+    landing.suptitle(f"x during the landing, each scenario's first seed{PLANT_TITLES[c.randomize]}")
 
     return {"x_landing.png": landing, "metrics.png": paired_figure(c)}
 
@@ -260,7 +291,7 @@ def paired_figure(c: Comparison, size: tuple[float, float] | None = None):
             ax.text(0.5, 0.5, "one controller: nothing to pair", ha="center", va="center", transform=ax.transAxes)
     figure.suptitle(
         f"Paired against {reference} on the same {_count(len(c.scenarios), 'scenario')} × "
-        f"{_count(len(c.seeds), 'seed')}{PLANT_TITLES[c.randomize]}:\n"
+        f"{_count(c.seeds_per_scenario, 'seed')} each{PLANT_TITLES[c.randomize]}:\n"
         "ratio of means and its 95 % interval resampling seeds (below 1 is better)",
         fontsize=10,
     )

@@ -2,9 +2,10 @@
 
 ``DIR/runs/part-*.parquet`` holds the rows, one file per finished batch, each written to a
 temporary name and renamed, so an interrupted campaign leaves whole files only. A run is stored
-once it has a row; a later row of the same spec hash (a failed run retried) supersedes an earlier
-one. ``DIR/results.parquet`` is the campaign's table: its own runs, one row each. The table counts
-as the oldest part, so a folder kept with its table alone (a committed study) resumes from it.
+once it has a row of this microg version; a later row of the same spec hash (a failed run retried,
+a run of another version's row) supersedes an earlier one. ``DIR/results.parquet`` is the
+campaign's table: its own runs, one row each. The table counts as the oldest part, so a folder
+kept with its table alone (a committed study) resumes from it.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import pyarrow.parquet as pq
 from microg_env.analysis.metrics import RunMetrics
 from microg_env.experiments.comparison import QUANTITIES
 from microg_env.files import atomic_path
-from microg_env.rollout.runner import RunResult
+from microg_env.rollout.runner import RunResult, versions
 from microg_env.rollout.spec import RANDOMIZE
 from microg_env.validate import fault
 
@@ -36,6 +37,8 @@ RESULTS_FILE = "results.parquet"
 TERMINAL_CODES = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 #: Status of a run that completed (its metrics are set) and of one that raised.
 OK, FAILED = "ok", "failed"
+#: What :meth:`ResultStore.statuses` says of a row another microg version wrote.
+STALE = "stale"
 
 
 def _clean(value: Any) -> Any:
@@ -149,11 +152,18 @@ class ResultStore:
         )
 
     def statuses(self) -> dict[str, str]:
-        """The stored status of each spec hash."""
+        """The stored status of each spec hash; :data:`STALE` for a row another microg version wrote
+        (what the same spec computes may have changed since: it runs again)."""
         table = self.table()
         if not table.num_rows:
             return {}
-        return dict(zip(table.column("spec_hash").to_pylist(), table.column("status").to_pylist(), strict=True))
+        hashes, statuses = table.column("spec_hash").to_pylist(), table.column("status").to_pylist()
+        made = table.column("versions").to_pylist() if "versions" in table.column_names else [None] * len(hashes)
+        current = versions()["microg-env"]
+        for i, written in enumerate(made):
+            if written is not None and json.loads(written).get("microg-env", current) != current:
+                statuses[i] = STALE
+        return dict(zip(hashes, statuses, strict=True))
 
     def export(self, path: str | os.PathLike, hashes: Sequence[str]) -> pa.Table:
         """Write the rows of ``hashes`` (one per run) to ``path`` whole, and return them."""

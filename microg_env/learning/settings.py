@@ -25,6 +25,7 @@ ENV_IDS = (
     "MicroGravityLanding-Residual-v4",
     "MicroGravityLanding-Residual-v5",
     "MicroGravityLanding-Residual-v6",
+    "MicroGravityLanding-Residual-v7",
 )
 #: What training needs installed, named when it is missing.
 TRAIN_EXTRA = "microg train needs the train extra: pip install 'microg-env[train]'"

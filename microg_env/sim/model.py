@@ -274,7 +274,8 @@ class Rig:
                 self.load_bodies,
                 np.where(placed[:, None], loads[:, None] * self._unit_load_inertia, 0.0),
             ),
-            ("geom_rgba", (self._load_geoms, 3), np.where(placed, 1.0, 0.25)),  # held weights drawn faint
+            # held weights drawn faint, those beyond the schedule's not at all
+            ("geom_rgba", (self._load_geoms, 3), np.where(placed, 1.0, np.where(loads > 0.0, 0.25, 0.0))),
             ("geom_solref", self._pad_geom, solref),
             ("qpos_spring", self.qzs_qpos, unit.qzs_force_n / params.qzs.residual_stiffness_n_per_m),
             ("tendon_stiffness", self._balancer, unit.balancer_stiffness_n_per_m),

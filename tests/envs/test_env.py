@@ -23,7 +23,7 @@ from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.envs.vector import MicroGravityLandingVectorEnv
 from microg_env.imperfections import DomainRandomization
 from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES, Readings, gated_actions, highpass_gain
-from microg_env.params import RigParams
+from microg_env.params import MAX_CONTROL_STEPS, RigParams
 from microg_env.sim.model import drive_inertia_kg_m2
 from microg_env.task import TaskSettings
 
@@ -50,7 +50,7 @@ def _steps(env: gym.Env, steps: int, action: float = -0.01) -> np.ndarray:
 def test_registered_and_made_by_id():
     env = gym.make(ENV_ID)
     assert isinstance(env.unwrapped, MicroGravityLandingEnv)
-    assert env.spec.max_episode_steps is None  # the env truncates itself at its scenario's duration
+    assert env.spec.max_episode_steps == MAX_CONTROL_STEPS  # the env truncates itself before TimeLimit can
     assert env.action_space == gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
     assert env.observation_space.shape == (len(OBSERVATION_SCALES),)
 
@@ -170,7 +170,10 @@ def test_task_settings_own_every_default_and_both_envs_pass_them_through():
     env_parameters = inspect.signature(MicroGravityLandingEnv).parameters
     assert set(env_parameters) == {"render_mode", "width", "height", "camera_name", "settings"}
     vector_parameters = inspect.signature(MicroGravityLandingVectorEnv).parameters
-    assert set(vector_parameters) == {"num_envs", "autoreset_mode", "scenarios", "nthread", "render_mode", "kwargs"}
+    assert set(vector_parameters) == {
+        "num_envs", "autoreset_mode", "scenarios", "nthread", "render_mode", "width", "height", "camera_name",
+        "max_episode_steps", "kwargs",
+    }  # fmt: skip
     defaults, env = TaskSettings(), MicroGravityLandingEnv()
     vector = MicroGravityLandingVectorEnv(num_envs=2, decision_period=3)
     for field in dataclasses.fields(TaskSettings):
@@ -231,6 +234,26 @@ def test_reward_keeps_a_gradient_from_millimetres_to_nanometres_and_never_pays_f
     _, reward, _, _, info = env.step(np.array([0.0], dtype=np.float32))
     assert reward == pytest.approx(x_reward(info["x_m"], 1e-8, 0.025 - 1e-4))
     assert reward == pytest.approx(info["reward_x"])
+
+
+def test_the_step_that_overruns_the_guide_pays_nothing_not_less():
+    """Random speed commands end on a stroke limit with x beyond the guide's half stroke: that last
+    step's reward is 0, as every other step's lies in [0, 1] (it was negative, down to -0.01)."""
+    from microg_env.envs.landing import x_reward
+
+    assert x_reward(0.05, 1e-8, 0.0249) == 0.0
+    env = gym.make("microg_env:MicroGravityLanding-v1", condition=3)
+    env.action_space.seed(0)
+    env.reset(seed=0)
+    rewards, terminated, truncated = [], False, False
+    while not (terminated or truncated):
+        _, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        rewards.append(reward)
+    assert terminated
+    assert info["termination_reason"] == "guide_stroke_limit"
+    assert rewards[-1] == 0.0
+    assert min(rewards) >= 0.0
+    assert max(rewards) <= 1.0
 
 
 def test_the_descent_term_scores_the_velocity_error_against_the_ideal_descent():
@@ -685,6 +708,27 @@ def test_domain_randomization_changes_the_rig_each_reset_without_recompiling():
     assert (env.params.pad.stiffness_n_per_m, env.active_scenario.loads[0].mass_kg, env.params.lander.mass_kg) == first
 
 
+def test_a_seed_draws_one_plant_whatever_its_schedule():
+    """The plant comes from a stream of its own: schedules of one, three and four weights, and the
+    training sampler's draws, meet the same plant from one seed, and only the weights differ (the
+    plant once followed the weights' draws: one-weight schedules shared every plant, the others
+    each met another)."""
+    from microg_env.scenarios import HELD_OUT
+
+    plants = []
+    for name in ("light-long", "three-stage", "four-stage"):
+        env = MicroGravityLandingEnv(scenario=HELD_OUT[name], domain_randomization="wider")
+        env.reset(seed=7)
+        plants.append(env.params)
+    env = MicroGravityLandingEnv(scenario_sampler="training", domain_randomization="wider")
+    env.reset(seed=7)
+    plants.append(env.params)
+    assert plants[0] != RigParams()
+    assert all(plant == plants[0] for plant in plants)
+    env.reset(seed=8)
+    assert env.params != plants[0]
+
+
 def test_the_full_randomisation_draws_the_drive_after_the_plant_and_writes_it_into_the_model():
     """The drive's draws come after the older ones (a plant drawn by the defaults is unchanged), and
     every drawn drive parameter reaches the compiled model of the running episode."""
@@ -912,6 +956,27 @@ def test_a_long_episode_made_by_id_runs_to_its_scenario_duration():
     assert trajectory.termination_reason is None
 
 
+def test_gymnasiums_time_aware_observation_wraps_every_id():
+    """Every id registers a step limit (the most control periods a run may take), so Gymnasium's
+    wrappers that need one work; the episode still ends at its own duration."""
+    from gymnasium.wrappers import TimeAwareObservation
+
+    for env_id in [name for name in gym.registry if name.startswith("microg_env:")]:
+        env = TimeAwareObservation(gym.make(env_id))
+        obs, _ = env.reset(seed=0)
+        assert obs.shape == (env.unwrapped.observation_space.shape[0] + 1,), env_id
+        assert obs[-1] == 0
+        obs, *_ = env.step(env.action_space.sample() * 0)
+        assert obs[-1] == 1
+    env = gym.make(ENV_ID, scenario=Scenario("short", (LoadStep(0.49),), 0.09, duration_s=0.01))
+    steps, truncated = 0, False
+    env.reset(seed=0)
+    while not truncated:
+        *_, truncated, _ = env.step(np.zeros(1, dtype=np.float32))
+        steps += 1
+    assert steps == 10  # 10 ms at 1 ms
+
+
 def test_numpy_integer_seeds_are_seeds():
     env = MicroGravityLandingEnv(condition=1)
     first, _ = env.reset(seed=np.int64(5))
@@ -964,6 +1029,16 @@ def test_every_test_scenario_lies_outside_the_training_and_validation_draws():
         assert sampler.outside(drawn, mass, g) == ()
     assert ScenarioSampler().outside(CONDITIONS[3], mass, g) == ("start height",)  # 55 mm, two weights like training
     assert covered == {"impact speed", "load", "start height", "stages"}
+    # eight held-out schedules spanning each axis beyond the training draws on both sides where it can
+    speeds = [s.impact_speed_m_s(mass, g) for s in HELD_OUT.values()]
+    loads = [kg for s in HELD_OUT.values() for kg in s.loads_kg]
+    assert len(HELD_OUT) >= 8
+    assert min(speeds) < 0.02
+    assert max(speeds) > 0.06  # training's fastest: 48 mm/s
+    assert min(loads) <= 0.1
+    assert max(loads) >= 2.0
+    assert {len(s.loads) for s in HELD_OUT.values()} == {1, 2, 3, 4}
+    assert max(s.descent_height_m for s in HELD_OUT.values()) >= 0.12
 
 
 def test_the_wider_test_plants_draw_every_range_half_again_as_wide():

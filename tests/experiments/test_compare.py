@@ -13,6 +13,7 @@ from microg_env.cli import main
 from microg_env.controllers.registry import load_policy, policy_card, shipped_policy_folder
 from microg_env.experiments.comparison import QUANTITIES, TEST_SEED, compare
 from microg_env.experiments.comparison_report import COMPARISON_FILES, render_markdown, write
+from microg_env.experiments.comparison_settings import scenario_seeds
 from microg_env.interface import OBSERVATION_INDEX, SENSOR_SETS
 from microg_env.learning.hyperparams import load as load_hyperparams
 
@@ -31,11 +32,12 @@ def randomized():
 
 @pytest.mark.slow
 def test_every_controller_meets_the_same_plants_and_seeds(randomized):
+    first, second = scenario_seeds("condition-2", TEST_SEED, 2)
     assert [(r.case.controller, r.case.seed) for r in randomized.results] == [
-        ("pid", TEST_SEED),
-        ("feedforward", TEST_SEED),
-        ("pid", TEST_SEED + 1),
-        ("feedforward", TEST_SEED + 1),
+        ("pid", first),
+        ("feedforward", first),
+        ("pid", second),
+        ("feedforward", second),
     ]
     by_seed = {}
     for r in randomized.results:  # the ideal reference depends only on the drawn lander, pad and loads
@@ -83,7 +85,7 @@ def test_the_report_holds_the_table_ratios_figures_and_json(randomized, tmp_path
     assert sorted(p.name for p in out.iterdir()) == sorted(COMPARISON_FILES)
     data = json.loads((out / "comparison.json").read_text())
     assert data["randomize"] is True
-    assert data["seeds"] == [TEST_SEED, TEST_SEED + 1]
+    assert data["seeds"] == {"condition-2": list(scenario_seeds("condition-2", TEST_SEED, 2))}
     mean = data["summary"]["pid"]["collision_excursion_m"]["mean"]
     assert mean == pytest.approx(summarise(randomized.runs("pid"), lambda r: r.values["collision_excursion_m"]).mean)
     assert len(data["cases"]) == 4
@@ -120,7 +122,7 @@ def test_cli_compare_pairs_against_the_reference_on_randomised_drives(capsys):
     assert data["reference"] == "feedforward"
     ours = data["paired"]["oracle"]["collision_excursion_m"]
     cases = {(c["controller"], c["seed"]): c["values"]["collision_excursion_m"] for c in data["cases"]}
-    seeds = range(TEST_SEED, TEST_SEED + 3)
+    seeds = scenario_seeds("condition-2", TEST_SEED, 3)
     assert ours["ratio"] == pytest.approx(
         sum(cases["oracle", s] for s in seeds) / sum(cases["feedforward", s] for s in seeds)
     )
@@ -133,8 +135,15 @@ def test_cli_compare_pairs_against_the_reference_on_randomised_drives(capsys):
 
 
 def test_cli_compare_names_first_seed_when_the_last_seed_is_out_of_range(capsys):
-    assert main(["compare", "--controllers", "pid", "--first-seed", "4294967295", "--seeds", "2", "--quiet"]) == 2
+    args = ["compare", "--controllers", "pid", "--scenarios", "condition-1", "--seeds", "2", "--quiet"]
+    assert main([*args, "--first-seed", "4294967295"]) == 2
     assert "--first-seed: 4294967295 with --seeds 2 runs seed 4294967296" in capsys.readouterr().err
+    # heavy-first's block starts 10 000 seeds on: its last seed, not the first scenario's, is checked
+    args[4] = "condition-1,heavy-first"
+    assert main([*args, "--first-seed", str(4294967295 - 10_000)]) == 2
+    assert "--first-seed: 4294957295 with --seeds 2 runs seed 4294967296" in capsys.readouterr().err
+    assert main([*args, "--first-seed", "0", "--confirmation"]) == 2
+    assert "--confirmation: runs the seeds from 1000000; give it or --first-seed, not both" in capsys.readouterr().err
 
 
 def test_cli_compare_refuses_a_reference_it_does_not_run(capsys):
@@ -327,7 +336,10 @@ def test_the_figures_label_micrometres_and_say_which_plants(randomized):
     np.testing.assert_allclose(drawn.values, peaks * 1e6)
     assert np.isfinite(peaks[:40]).all()  # every window from 1 s before the touchdown to 1 s after has samples
     assert drawn.baseline is None  # no drop to the axis's bottom at each end
-    assert figures["x_landing.png"].get_suptitle() == f"x during the landing, seed {TEST_SEED}{PLANT_TITLES[True]}"
+    assert (
+        figures["x_landing.png"].get_suptitle()
+        == f"x during the landing, each scenario's first seed{PLANT_TITLES[True]}"
+    )
     assert sorted(t.get_text() for t in axes[0].get_legend().get_texts()) == ["feedforward", "pid"]
     titles = [ax.get_title() for ax in figures["metrics.png"].axes]
     assert "x at the collision [µm]" in titles
@@ -428,3 +440,58 @@ def test_cli_compare_refuses_a_bad_label_before_running(capsys, label, message):
     err = capsys.readouterr().err
     assert message in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_the_held_out_set_meets_a_plant_per_episode():
+    """The held-out schedules at 7 seeds each, as ``microg compare --randomize wider`` runs them: 56
+    episodes on 56 distinct plants and drives. Once every schedule ran seeds 1000 on, and a plant
+    followed the weights' draws: schedules with as many weights shared every plant (52 nominal, 39
+    distinct)."""
+    from microg_env.envs.landing import MicroGravityLandingEnv
+    from microg_env.rollout.spec import RunSpec
+    from microg_env.scenarios import HELD_OUT
+
+    plants = set()
+    for name in HELD_OUT:
+        seeds = scenario_seeds(name, TEST_SEED, 7)
+        env = MicroGravityLandingEnv(**RunSpec(name, "pid", seeds[0], randomize="wider").env_kwargs())
+        for seed in seeds:
+            env.reset(seed=seed)
+            plants.add(env.params)
+    assert len(plants) == 7 * len(HELD_OUT) >= 56
+
+
+def test_the_report_pairs_each_scenario_and_names_the_confirmation_seeds(randomized):
+    """Per-scenario paired ratios against the reference, and the confirmation seeds said to be
+    what they are (and only they)."""
+    from microg_env.experiments.comparison import Case
+    from microg_env.experiments.comparison_settings import CONFIRMATION_SEED
+
+    def moved(result, scenario, offset):
+        return replace(result, case=Case(result.case.controller, scenario, result.case.seed + offset))
+
+    offset = CONFIRMATION_SEED - TEST_SEED
+    seeds = {name: scenario_seeds(name, CONFIRMATION_SEED, 2) for name in ("condition-2", "condition-3")}
+    both = replace(
+        randomized,
+        scenarios={name: randomized.scenarios["condition-2"] for name in seeds},
+        seeds=seeds,
+        results=[moved(r, "condition-2", offset) for r in randomized.results]
+        + [moved(r, "condition-3", offset + 1000) for r in randomized.results],
+        reference="pid",
+    )
+    assert both.first_seed == CONFIRMATION_SEED
+    text = render_markdown(both)
+    assert text.startswith("# Controller comparison\n\nThese are the confirmation seeds: run once per release")
+    assert "never to make one.\n\nControllers pid, feedforward" in text  # a paragraph of its own
+    assert "- `condition-3`: 1 kg; from 90 mm; 6 s; seeds 1002000-1002001" in text
+    table = text.split("x at the collision, paired against `pid` per scenario")[1]
+    row = next(line for line in table.splitlines() if line.startswith("| feedforward |"))
+    for name in seeds:
+        p = both.paired("feedforward", "collision_excursion_m", scenario=name)
+        assert f"{p.ratio:.3g} [{p.ratio_low:.3g}, {p.ratio_high:.3g}]" in row
+    assert "confirmation" not in render_markdown(randomized)
+    assert "(2 seeds per scenario, each scenario its own, so each episode meets a plant of its own)" in text
+    assert "(2 seeds per scenario, each scenario its own), the nominal plant" in render_markdown(
+        replace(randomized, randomize=False)
+    )

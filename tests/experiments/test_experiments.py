@@ -929,3 +929,26 @@ def test_run_pools_start_their_workers_from_a_fork_server():
     with process_pool(1) as pool:
         assert pool._mp_context.get_start_method() == "forkserver"
         assert pool.submit(os.getpid).result() != os.getpid()
+
+
+def test_a_row_another_microg_version_wrote_runs_again(tmp_path):
+    """A stored row is reused only by the microg version that wrote it: 0.19.0 changed the plant a
+    seed draws, and a resumed study kept 0.18.0's 400 rows for the same specs ("0 run now")."""
+    import json
+
+    from microg_env.experiments.store import STALE, ResultStore
+    from microg_env.rollout.runner import versions
+
+    store = ResultStore(tmp_path)
+    mine, older = versions(), versions() | {"microg-env": "0.0.1"}
+    store.write(
+        [
+            {"spec_hash": "a", "status": "ok", "versions": json.dumps(mine)},
+            {"spec_hash": "b", "status": "ok", "versions": json.dumps(older)},
+            {"spec_hash": "c", "status": "failed", "versions": json.dumps(older)},
+        ]
+    )
+    assert store.statuses() == {"a": "ok", "b": STALE, "c": STALE}
+    store.write([{"spec_hash": "b", "status": "ok", "versions": json.dumps(mine)}])  # run again: it supersedes
+    assert store.statuses() == {"a": "ok", "b": "ok", "c": STALE}
+    assert store.table(["b"]).column("versions").to_pylist() == [json.dumps(mine)]

@@ -964,17 +964,23 @@ RESIDUAL_IDS = {
 RESIDUAL_IDS["MicroGravityLanding-Residual-v6"] = RESIDUAL_IDS["MicroGravityLanding-Residual-v5"] | {
     "residual_gate_on": "setpoint"
 }
-#: The versions on `adaptive-dither`, gated to the contact.
+RESIDUAL_IDS["MicroGravityLanding-Residual-v7"] = RESIDUAL_IDS["MicroGravityLanding-Residual-v6"] | {
+    "reward_scale_m": 1e-6
+}
+#: The versions on `adaptive-dither`, gated to the contact, at x0 = 10 nm.
 GATED_IDS = ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v6")
 #: The packaged files (by algorithm) whose entry for a residual version is checked against the id:
 #: ppo.yml's unless listed; every file has one for the working id (v6), all but crossq.yml for v5.
 PACKAGED_ENTRIES = {
     "MicroGravityLanding-Residual-v5": ("ppo", "sac", "tqc"),
     "MicroGravityLanding-Residual-v6": hp.ALGORITHMS,
+    "MicroGravityLanding-Residual-v7": ("sac",),
 }
 #: Each version's reward_threshold: its zero residual's mean return (its base controller's).
-THRESHOLDS = dict.fromkeys(RESIDUAL_IDS, microg_env.REWARD_THRESHOLD) | dict.fromkeys(
-    GATED_IDS, microg_env.GATED_REWARD_THRESHOLD
+THRESHOLDS = (
+    dict.fromkeys(RESIDUAL_IDS, microg_env.REWARD_THRESHOLD)
+    | dict.fromkeys(GATED_IDS, microg_env.GATED_REWARD_THRESHOLD)
+    | {"MicroGravityLanding-Residual-v7": microg_env.ALIGNED_REWARD_THRESHOLD}
 )
 
 
@@ -1019,17 +1025,18 @@ def test_a_zero_action_is_the_base_controller_on_every_version_of_the_residual_t
     references = {}
     for env_id in RESIDUAL_IDS:
         base = gym.spec(env_id).kwargs["base_controller"]
-        if base not in references:
-            references[base] = run(gym.make(RESIDUAL_ID, base_controller=base))
+        scale = gym.spec(env_id).kwargs.get("reward_scale_m", 1e-8)  # v7 scores x from 1 um
+        if (base, scale) not in references:
+            references[base, scale] = run(gym.make(RESIDUAL_ID, base_controller=base, reward_scale_m=scale))
         observations, rewards = run(gym.make(env_id))
-        v1_observations, v1_rewards = references[base]
+        v1_observations, v1_rewards = references[base, scale]
         assert rewards == v1_rewards, env_id
         hidden = [OBSERVATION_INDEX[name] for name in RESIDUAL_IDS[env_id].get("hidden_observations", ())]
         shown = v1_observations.copy()
         shown[:, hidden] = 0.0
         np.testing.assert_array_equal(observations, shown, err_msg=env_id)
         assert v1_observations[:, hidden].any(axis=0).all(), env_id  # what it hides is there to hide
-    assert set(references) == {"adaptive", "adaptive-dither"}
+    assert set(references) == {("adaptive", 1e-8), ("adaptive-dither", 1e-8), ("adaptive-dither", 1e-6)}
 
 
 @pytest.mark.parametrize("env_id", RESIDUAL_IDS)

@@ -9,7 +9,9 @@ import microg_env  # noqa: F401  (registers the environments)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("env_id", ["MicroGravityLanding-Residual-v1", "MicroGravityLanding-Residual-v5"])
+@pytest.mark.parametrize(
+    "env_id", ["MicroGravityLanding-Residual-v1", "MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v7"]
+)
 def test_the_reward_threshold_is_the_zero_residuals_measured_return(env_id):
     """Each base's reward_threshold is its zero residual's mean return over the id's own draws,
     seeds 1000-1099, rounded down (as ``training/returns_table.py`` measures it): measured here on

@@ -153,11 +153,11 @@ def test_a_killed_compare_leaves_no_process_behind_and_runs_again_whole(tmp_path
     _check_exit(code, stderr, signal.SIGKILL)
     assert main([*COMPARE, "--out", str(out)]) == 0
     cases = json.loads((out / "comparison.json").read_text())["cases"]
-    assert sorted((case["controller"], case["seed"]) for case in cases) == [
-        ("feedforward", 1000),
-        ("feedforward", 1001),
-        ("pid", 1000),
-        ("pid", 1001),
+    assert sorted((case["controller"], case["seed"]) for case in cases) == [  # condition-2's seeds: 2000 on
+        ("feedforward", 2000),
+        ("feedforward", 2001),
+        ("pid", 2000),
+        ("pid", 2001),
     ]
     assert {case["scenario"] for case in cases} == {"condition-2"}
     assert [p.name for p in results.iterdir()] == ["comparison"]

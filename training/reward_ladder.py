@@ -1,0 +1,214 @@
+"""The reward ladder: does a residual task's return rank controllers as its headline metric does?
+
+Each rung drives the id's own draws (its training schedules, plants and drives, seeds from
+``--first-seed``): the paper's PID and the other classical controllers as the base with a zero
+residual (the zero residual on the id's base is the base itself), the shipped policy as trained
+and with its action scaled by 0.5, 1.5 and -1, and uniform random actions. Every rung runs in the
+speed-action environment through :class:`~microg_env.controllers.policy.PolicyController`, which
+acts as the training environment does, so one rollout gives both the headline metric (x at the
+first collision, as ``microg compare`` reports it) and every control period's true x, from which
+the return is scored for each reward scale x0 (``--scales``) offline: the id's reward with that x0,
+summed over the episode and divided by the decision period (a step's reward is the mean over its
+periods). The report gives each rung's mean return and metric, Spearman's rank correlation of
+the rungs' mean returns with their negated mean metrics per x0, and the shipped policy's return
+minus its base's, paired by seed (mean, its standard error and the sign test's p).
+
+Run: ``python training/reward_ladder.py [--env MicroGravityLanding-Residual-v6] [--seeds 40]
+[--scales 1e-8,1e-7,1e-6] [--json FILE]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+
+import microg_env  # noqa: F401  (registers the ids)
+from microg_env.analysis.metrics import contacts
+from microg_env.analysis.paired import sign_test_p
+from microg_env.controllers.registry import ACTING_KEYS, deployed_controller, make_controller
+from microg_env.envs.landing import MicroGravityLandingEnv, x_reward
+from microg_env.experiments.comparison_settings import TEST_SEED
+from microg_env.rollout.episode import run_episode
+from microg_env.trajectory import Trajectory
+
+#: Classical rungs: each the id's base swapped for it, with a zero residual.
+CLASSICAL = ("pid", "feedforward", "adaptive", "adaptive-dither")
+#: The shipped policy's action scaled: rungs named "policy x<scale>".
+SCALES = (0.5, 1.0, 1.5, -1.0)
+#: Rank agreement the ladder must reach (Spearman's rho of mean return against negated mean metric).
+MIN_SPEARMAN = 0.9
+
+
+class ScaledPolicy:
+    """A policy's deterministic action times ``scale`` (clipped to the action's range by the controller)."""
+
+    def __init__(self, policy, scale: float) -> None:
+        self.policy, self.scale = policy, scale
+
+    def predict(self, observation, deterministic: bool = True):
+        action, state = self.policy.predict(observation, deterministic=True)
+        return np.asarray(action) * self.scale, state
+
+
+class RandomPolicy:
+    """Uniform random actions in [-1, 1] from its own generator."""
+
+    def __init__(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def predict(self, observation, deterministic: bool = True):
+        return self.rng.uniform(-1.0, 1.0, size=(np.atleast_2d(observation).shape[0], 1)).astype(np.float32), None
+
+
+@dataclass(frozen=True)
+class Rung:
+    """One controller's episodes: x at the first collision (NaN where the episode had none), each
+    episode's true x at every control period, and the periods of its first contact."""
+
+    name: str
+    collision_m: np.ndarray
+    x_m: list[np.ndarray]
+    contact: list[slice]
+
+    def returns(self, scale_m: float, limit_m: float, decision_period: int, contact_only: bool) -> np.ndarray:
+        """Each episode's return under the reward with x0 = ``scale_m``, as the environment pays it
+        (each step the mean over the periods it ran, the last one perhaps short), over every period
+        or only the first contact's."""
+        out = []
+        for x, window in zip(self.x_m, self.contact, strict=True):
+            paid = x_reward(x, scale_m, limit_m)
+            if contact_only:
+                paid = np.where((np.arange(x.size) >= window.start) & (np.arange(x.size) < window.stop), paid, 0.0)
+            steps = range(0, x.size, decision_period)
+            out.append(sum(paid[i : i + decision_period].mean() for i in steps))
+        return np.array(out)
+
+
+def first_contact(trajectory: Trajectory) -> slice:
+    """The rows of the first contact, touchdown to lift-off (``microg compare``'s), or an empty slice."""
+    found = contacts(trajectory)
+    if not found or found[0].end is None:
+        return slice(0, 0)
+    return slice(found[0].start, found[0].end)
+
+
+def speed_env(env_id: str) -> MicroGravityLandingEnv:
+    """The id's draws in the speed-action environment (its acting settings dropped)."""
+    kwargs = {k: v for k, v in gym.spec(env_id).kwargs.items() if k not in ACTING_KEYS}
+    return MicroGravityLandingEnv(**kwargs)
+
+
+def controllers(env_id: str, policy: str, seed: int) -> dict[str, object]:
+    """The ladder's rungs for ``env_id``: name -> a fresh controller."""
+    kwargs = gym.spec(env_id).kwargs
+    period = MicroGravityLandingEnv().settings.control_period_s
+    base = kwargs["base_controller"]
+    rungs: dict[str, object] = {}
+    for name in CLASSICAL:
+        rungs[f"{name} (zero residual)" if name == base else name] = make_controller(name, period)
+    network = make_controller(policy, period).policy
+    for scale in SCALES:
+        rungs[f"{policy} x{scale:g}"] = deployed_controller(ScaledPolicy(network, scale), kwargs)
+    rungs["random"] = deployed_controller(RandomPolicy(seed), kwargs)
+    return rungs
+
+
+def run_ladder(env_id: str, policy: str, seeds: Sequence[int]) -> list[Rung]:
+    env = speed_env(env_id)
+    out = []
+    for name, controller in controllers(env_id, policy, seeds[0]).items():
+        collision, xs, windows = [], [], []
+        for seed in seeds:
+            trajectory = run_episode(env, controller, seed=seed)
+            window = first_contact(trajectory)
+            x = np.asarray(trajectory.x_m)
+            collision.append(float(np.max(np.abs(x[window]))) if window.stop else math.nan)
+            xs.append(x[1:])  # the periods run (the first row is the reset)
+            windows.append(slice(max(window.start - 1, 0), max(window.stop - 1, 0)))
+        out.append(Rung(name, np.array(collision), xs, windows))
+    return out
+
+
+def spearman(a: Sequence[float], b: Sequence[float]) -> float:
+    """Spearman's rank correlation (average ranks for ties)."""
+    from scipy.stats import spearmanr
+
+    return float(spearmanr(a, b).statistic)
+
+
+def report(env_id: str, policy: str, rungs: list[Rung], scales: Sequence[float]) -> dict:
+    env = speed_env(env_id)
+    limit, period = env.core.x_limit_m, int(gym.spec(env_id).kwargs["decision_period"])
+    base = next(r for r in rungs if r.name.endswith("(zero residual)"))
+    shipped = next(r for r in rungs if r.name == f"{policy} x1")
+    metric = {r.name: float(np.nanmean(r.collision_m)) for r in rungs}
+    out: dict = {"env": env_id, "policy": policy, "episodes": len(base.x_m), "metric_m": metric, "by_scale": {}}
+    for scale, contact_only in [(s, c) for c in (False, True) for s in scales]:
+        returns = {r.name: r.returns(scale, limit, period, contact_only) for r in rungs}
+        means = {name: float(values.mean()) for name, values in returns.items()}
+        gain = returns[shipped.name] - returns[base.name]
+        out["by_scale"][f"{scale:g}{', first contact' if contact_only else ''}"] = {
+            "mean_return": means,
+            "spearman": spearman([means[r.name] for r in rungs], [-metric[r.name] for r in rungs]),
+            "policy_minus_base": float(gain.mean()),
+            "policy_minus_base_se": float(gain.std(ddof=1) / math.sqrt(gain.size)) if gain.size > 1 else math.nan,
+            "policy_minus_base_sign_p": sign_test_p(gain),
+        }
+    return out
+
+
+def render(result: dict) -> str:
+    scales = list(result["by_scale"])
+    lines = [
+        f"{result['env']}, {result['episodes']} episodes of its own draws per rung; x0 in m",
+        "",
+        "| rung | x at the collision [µm] | " + " | ".join(f"return, x0 = {s}" for s in scales) + " |",
+        "|---|---|" + "---|" * len(scales),
+    ]
+    for name, x in sorted(result["metric_m"].items(), key=lambda item: item[1]):
+        cells = [f"{result['by_scale'][s]['mean_return'][name]:.2f}" for s in scales]
+        lines.append(f"| {name} | {x * 1e6:.3g} | " + " | ".join(cells) + " |")
+    lines.append(
+        "| Spearman (return, -x) | | " + " | ".join(f"{result['by_scale'][s]['spearman']:.3f}" for s in scales) + " |"
+    )
+    lines.append(
+        f"| {result['policy']} − base, paired | | "
+        + " | ".join(
+            f"{v['policy_minus_base']:+.2f} ± {v['policy_minus_base_se']:.2f} (p = {v['policy_minus_base_sign_p']:.2g})"
+            for v in result["by_scale"].values()
+        )
+        + " |"
+    )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="MicroGravityLanding-Residual-v6", help="a residual id")
+    parser.add_argument("--policy", default="residual-sac-setpoint", help="a shipped policy trained on it")
+    parser.add_argument("--seeds", type=int, default=40)
+    parser.add_argument("--first-seed", type=int, default=TEST_SEED)
+    parser.add_argument("--scales", default="1e-8,1e-7,1e-6", help="reward scales x0 to score, m")
+    parser.add_argument("--json", help="also write the result here")
+    args = parser.parse_args(argv)
+    if gym.spec(args.env).kwargs.get("action_mode") != "residual":
+        parser.error(f"--env: {args.env} is not a residual id")
+    scales = [float(s) for s in args.scales.split(",")]
+    rungs = run_ladder(args.env, args.policy, range(args.first_seed, args.first_seed + args.seeds))
+    result = report(args.env, args.policy, rungs, scales)
+    print(render(result))
+    if args.json:
+        with open(args.json, "w") as handle:
+            json.dump(result, handle, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
