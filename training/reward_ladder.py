@@ -84,8 +84,10 @@ class Rung:
         out = []
         for x, window in zip(self.x_m, self.contact, strict=True):
             paid = x_reward(x, scale_m, limit_m)
-            if contact_only:
-                paid = np.where((np.arange(x.size) >= window.start) & (np.arange(x.size) < window.stop), paid, 0.0)
+            if contact_only:  # the periods outside the first contact pay nothing
+                outside = np.ones(x.size, dtype=bool)
+                outside[window] = False
+                paid[outside] = 0.0
             steps = range(0, x.size, decision_period)
             out.append(sum(paid[i : i + decision_period].mean() for i in steps))
         return np.array(out)

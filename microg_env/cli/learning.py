@@ -146,7 +146,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             raise ValueError(f"--scenarios: scenario must be one of {', '.join(known)}, got {name!r}")
     if args.confirmation and args.first_seed is not None:
         raise ValueError(f"--confirmation: runs the seeds from {CONFIRMATION_SEED}; give it or --first-seed, not both")
-    first_seed = CONFIRMATION_SEED if args.confirmation else TEST_SEED if args.first_seed is None else args.first_seed
+    first_seed = args.first_seed
+    if first_seed is None:
+        first_seed = CONFIRMATION_SEED if args.confirmation else TEST_SEED
     last = max(scenario_seeds(name, first_seed, args.seeds)[-1] for name in scenarios)
     if last > MAX_SEED:
         raise ValueError(
