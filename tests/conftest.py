@@ -11,6 +11,47 @@ import pytest
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
+#: Test files (or tests, by the start of their id) that one worker runs together under the README's
+#: ``--dist loadgroup``, by group: the tests that start Ray ("ray": one starts a cluster on a fixed
+#: port, and Ray instances side by side starve each other on two cores), and the files whose tests
+#: share a module-scoped fixture (a calibration, a reproduction, a training run), so that it is
+#: built once. tests/test_repo.py checks that every file with a module-scoped fixture is here.
+GROUPS = {
+    "tests/experiments/test_experiments.py": "ray",
+    "tests/rollout/test_processes.py::test_a_killed_campaign": "ray",
+    **{
+        path: path
+        for path in (
+            "tests/analysis/test_figures.py",
+            "tests/cli/test_cli.py",
+            "tests/controllers/test_controllers.py",
+            "tests/experiments/test_compare.py",
+            "tests/learning/test_export_equivalence.py",
+            "tests/learning/test_learning.py",
+            "tests/learning/test_training_records.py",
+            "tests/paper/test_calibration.py",
+            "tests/paper/test_report.py",
+            "tests/test_install.py",
+        )
+    },
+}
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """``--dist loadgroup``: pytest-xdist deals the tests out one by one, but those of a group in
+    :data:`GROUPS` as one unit. (pytest-xdist's own ``xdist_group`` marks are not read: with pytest
+    9.2 its loadgroup no longer groups them.) Any other ``--dist``: pytest-xdist's own scheduler."""
+    if config.getoption("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class GroupScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return next((group for start, group in GROUPS.items() if nodeid.startswith(start)), nodeid)
+
+    return GroupScheduling(config, log)
+
+
 @pytest.fixture(autouse=True)
 def _quiet_gymnasium_warnings():
     """Unbounded observation boxes draw a Gymnasium warning; physical quantities are unbounded."""

@@ -1,7 +1,6 @@
 """The tutorials in docs/tutorials run as written, each at a small size, and leave what they say
 they write (the issue's budget: three minutes together on a CPU). The campaign tutorial starts Ray:
-its test is in experiments/test_experiments.py, the one file whose tests start Ray, so that under
-``--dist loadfile`` they run one after another."""
+its test is in experiments/test_experiments.py, with the campaign tests."""
 
 import json
 from pathlib import Path
