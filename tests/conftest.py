@@ -37,6 +37,13 @@ GROUPS = {
 }
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The slow tests first, then the quick ones, each in collection order: the workers deal out the
+    long tests while there is work for both, and end on short ones instead of one idling while the
+    other runs a long test. (A group goes to a worker with its first test.)"""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 def pytest_xdist_make_scheduler(config: pytest.Config, log):
     """``--dist loadgroup``: pytest-xdist deals the tests out one by one, but those of a group in
     :data:`GROUPS` as one unit. (pytest-xdist's own ``xdist_group`` marks are not read: with pytest

@@ -14,6 +14,7 @@ BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 SMOKE_ARGS = {
     "bench_run": ["--repeats", "1", "--controllers", "pid,feedforward", "--duration", "2"],
     "bench_batch": ["--sizes", "2", "--periods", "20", "--repeats", "1"],
+    "bench_kernel_args": ["--calls", "100", "--repeats", "1"],
     "bench_compare": ["--seeds", "1", "--scenarios", "condition-1", "--duration", "0.5", "--timesteps", "512"],
     "bench_reproduce": ["--repeats", "1", "--duration", "0.5"],
     "convergence": ["--steps-us", "100", "25", "--duration", "0.2", "--controllers", "pid,residual-ppo"],

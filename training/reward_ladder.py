@@ -35,7 +35,7 @@ from microg_env.analysis.paired import sign_test_p
 from microg_env.controllers.registry import ACTING_KEYS, deployed_controller, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv, x_reward
 from microg_env.experiments.comparison_settings import TEST_SEED
-from microg_env.rollout.episode import run_episode
+from microg_env.rollout.batch import EpisodeSpec, run_batch
 from microg_env.trajectory import Trajectory
 
 #: Classical rungs: each the id's base swapped for it, with a zero residual.
@@ -101,10 +101,14 @@ def first_contact(trajectory: Trajectory) -> slice:
     return slice(found[0].start, found[0].end)
 
 
+def speed_settings(env_id: str) -> dict:
+    """The id's draws in the speed-action environment: its keywords but the acting settings."""
+    return {k: v for k, v in gym.spec(env_id).kwargs.items() if k not in ACTING_KEYS}
+
+
 def speed_env(env_id: str) -> MicroGravityLandingEnv:
-    """The id's draws in the speed-action environment (its acting settings dropped)."""
-    kwargs = {k: v for k, v in gym.spec(env_id).kwargs.items() if k not in ACTING_KEYS}
-    return MicroGravityLandingEnv(**kwargs)
+    """The id's draws in the speed-action environment (:func:`speed_settings`)."""
+    return MicroGravityLandingEnv(**speed_settings(env_id))
 
 
 def controllers(env_id: str, policy: str, seed: int) -> dict[str, object]:
@@ -123,12 +127,18 @@ def controllers(env_id: str, policy: str, seed: int) -> dict[str, object]:
 
 
 def run_ladder(env_id: str, policy: str, seeds: Sequence[int]) -> list[Rung]:
-    env = speed_env(env_id)
+    """Every rung on every seed, as rigs of one batch (each the single environment's episode, bit
+    for bit; the random rung's one generator is drawn from across its rigs)."""
+    rungs = controllers(env_id, policy, seeds[0])
+    episodes = [EpisodeSpec(controller, None, seed) for controller in rungs.values() for seed in seeds]
+    runs = iter(run_batch(episodes, speed_settings(env_id)))
     out = []
-    for name, controller in controllers(env_id, policy, seeds[0]).items():
+    for name in rungs:
         collision, xs, windows = [], [], []
-        for seed in seeds:
-            trajectory = run_episode(env, controller, seed=seed)
+        for _ in seeds:
+            trajectory, _, error = next(runs)
+            if error is not None:
+                raise RuntimeError(f"{name}: {error}")
             window = first_contact(trajectory)
             x = np.asarray(trajectory.x_m)
             collision.append(float(np.max(np.abs(x[window]))) if window.stop else math.nan)

@@ -135,7 +135,7 @@ class Feedforward(VectorController):
         actions = np.empty(ids.size, dtype=np.float32)
         feedforward_actions(
             rows, ids, SCALES, self._start, self._velocity, self._reference_offset, self._bristle, self._plant,
-            *self.constants, actions, *self.pid.loop(),
+            *self.constants, actions, self.pid.loop(),
         )  # fmt: skip
         return actions
 
@@ -174,12 +174,12 @@ class Oracle(Feedforward):
 
 @jit
 def feedforward_actions(
-    rows, ids, scales, start, velocity, reference_offset, bristle, plant, period, observer_gain, horizon, out,
-    setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, pid_period, max_speed,
+    rows, ids, scales, start, velocity, reference_offset, bristle, plant, period, observer_gain, horizon, out, loop
 ):  # fmt: skip
     """The feed-forward's actions (command / max_speed) for observations ``rows`` of rigs ``ids``,
-    into ``out``; ``plant``: each rig's model (rows of :func:`plant_model`); the last arguments are
-    its PID's (:meth:`PID.loop`)."""
+    into ``out``; ``plant``: each rig's model (rows of :func:`plant_model`); ``loop``: its PID's
+    (:meth:`PID.loop`)."""
+    max_speed = loop[-1]
     for j in range(ids.size):
         i = ids[j]
         model = plant[i]
@@ -204,10 +204,7 @@ def feedforward_actions(
         estimate = velocity[i] + accel * period
         estimate += observer_gain * (support_velocity + x_rate - estimate)
         velocity[i] = estimate
-        speed = pid_command(
-            i, x, x_rate, estimate + accel * period, setpoint, integral, derivative, kp, ki, kd, alpha,
-            integral_limit, pid_period, max_speed,
-        )  # fmt: skip
+        speed = pid_command(i, x, x_rate, estimate + accel * period, loop)
         # 2. The motor torque beyond the speed loop's own that the support will need.
         load = support_stiffness * (position - start[i]) + viscous * speed
         torque = inertia * gear * accel + load / gear

@@ -97,20 +97,21 @@ class PID(VectorController):
 
     def kernel_args(self) -> tuple:
         """:func:`pid_actions`'s arguments after the observations and rigs, but its output."""
-        return (SCALES, self.derivative_on_measurement, *self.loop())
+        return (SCALES, self.derivative_on_measurement, self.loop())
 
     def loop(self) -> tuple:
-        """The arguments of :func:`pid_command` after ``i, x, rate, bias``: this loop's state and constants."""
+        """:func:`pid_command`'s ``loop``: this loop's state (setpoint, integral and filtered
+        derivative, one entry per rig) and its constants (:attr:`constants`)."""
         return (self.setpoint_m, self._integral, self._derivative, *self.constants)
 
 
 @jit
-def pid_command(
-    i, x, rate, bias, setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, period, max_speed
-):  # fmt: skip
+def pid_command(i, x, rate, bias, loop):
     """Rig ``i``'s speed command, m/s, for its ruler reading ``x`` and derivative input ``rate``;
     ``bias`` (a feed-forward, m/s) is added inside the saturation, so the anti-windup sees the whole
-    command. Updates the rig's integral and filtered derivative."""
+    command. ``loop`` is :meth:`PID.loop`'s tuple; the rig's integral and filtered derivative are
+    updated in it."""
+    setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, period, max_speed = loop
     error = x - setpoint[i]
     filtered = derivative[i] + alpha * (rate - derivative[i])
     derivative[i] = filtered
@@ -124,18 +125,14 @@ def pid_command(
 
 
 @jit
-def pid_actions(
-    rows, ids, scales, on_measurement, setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, period,
-    max_speed, out,
-):  # fmt: skip
-    """The PID's actions (command / max_speed) for observations ``rows`` of rigs ``ids``, into ``out``."""
+def pid_actions(rows, ids, scales, on_measurement, loop, out):
+    """The PID's actions (command / max_speed) for observations ``rows`` of rigs ``ids``, into
+    ``out``; ``loop`` is :meth:`PID.loop`'s tuple."""
+    max_speed = loop[-1]
     for j in range(ids.size):
         x = rows[j, X] * scales[X]
         if on_measurement:
             rate = -(rows[j, SUPPORT_VELOCITY] * scales[SUPPORT_VELOCITY])
         else:
             rate = rows[j, X_RATE] * scales[X_RATE]
-        command = pid_command(
-            ids[j], x, rate, 0.0, setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, period, max_speed
-        )
-        out[j] = command / max_speed
+        out[j] = pid_command(ids[j], x, rate, 0.0, loop) / max_speed

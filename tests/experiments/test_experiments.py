@@ -669,6 +669,7 @@ def test_run_each_simulates_a_reference_its_runs_share_once(tmp_path, monkeypatc
         return simulate(*args)
 
     monkeypatch.setattr(reference, "_simulate", counted)
+    monkeypatch.setattr(reference, "_kept", {})  # whatever an earlier test in this process kept
     # forked workers, so that they count with the patched function (the pool's fork server would
     # start them from a fresh import)
     fork = multiprocessing.get_context("fork")
