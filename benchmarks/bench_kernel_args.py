@@ -3,8 +3,9 @@
 The same numba kernel (one rig, a few array reads) called with its 16 inputs as 16 arguments, as
 three named tuples, and as three plain tuples; medians of ``--repeats`` timings of ``--calls`` calls,
 in microseconds a call. Numba types a plain tuple (and an array or a scalar) from a fingerprint
-computed in C; a named tuple falls back to a type lookup in Python on every call. The environment's
-kernels (:mod:`microg_env.envs.period`) take plain tuples for that reason.
+computed in C; a named tuple falls back to a type lookup in Python on every call. The PID's loop
+(``PID.loop()``) is a plain tuple for that reason; the per-period kernels of
+:mod:`microg_env.envs.period` keep flat arguments (``docs/development.md``).
 
 Usage: ``python benchmarks/bench_kernel_args.py [--calls 20000] [--repeats 5]``.
 """

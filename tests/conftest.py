@@ -11,14 +11,15 @@ import pytest
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
-#: Test files (or tests, by the start of their id) that one worker runs together under the README's
-#: ``--dist loadgroup``, by group: the tests that start Ray ("ray": one starts a cluster on a fixed
-#: port, and Ray instances side by side starve each other on two cores), and the files whose tests
-#: share a module-scoped fixture (a calibration, a reproduction, a training run), so that it is
-#: built once. tests/test_repo.py checks that every file with a module-scoped fixture is here.
+#: What one worker runs together under the README's ``--dist loadgroup``, by group: a test file
+#: (``path``), or one test function with its parametrisations (``path::name``). The tests that start
+#: Ray ("ray": one starts a cluster on a fixed port, and Ray instances side by side starve each
+#: other on two cores), and the files whose tests share a module-scoped fixture (a calibration, a
+#: reproduction, a training run), so that it is built once. tests/test_repo.py checks that every
+#: file with a module-scoped fixture is here as a file and that every entry names a test.
 GROUPS = {
     "tests/experiments/test_experiments.py": "ray",
-    "tests/rollout/test_processes.py::test_a_killed_campaign": "ray",
+    "tests/rollout/test_processes.py::test_a_killed_campaign_leaves_no_ray_process_behind_and_resumes_whole": "ray",
     **{
         path: path
         for path in (
@@ -37,13 +38,41 @@ GROUPS = {
 }
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The slow tests first, then the quick ones, each in collection order: the workers deal out the
-    long tests while there is work for both, and end on short ones instead of one idling while the
-    other runs a long test. (A group goes to a worker with its first test.)"""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+def group_of(nodeid: str) -> str | None:
+    """The :data:`GROUPS` group of the test ``nodeid`` (relative to the repository), if any."""
+    for entry, group in GROUPS.items():
+        if nodeid.startswith(f"{entry}::" if "::" not in entry else f"{entry}[") or nodeid == entry:
+            return group
+    return None
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Before pytest-xdist starts its workers: compile the package's numba kernels into their cache
+    (:mod:`microg_env.compiled`) with a few short runs, once. On a fresh clone every process that
+    found the cache empty compiled them itself, about 13 CPU-seconds each: the two workers and the
+    commands, Ray workers and process pools the first slow tests start (CI: 1300 CPU-seconds against
+    860 with the cache warm)."""
+    if not getattr(config.option, "numprocesses", None) or hasattr(config, "workerinput"):
+        return
+    from microg_env.rollout.runner import run, run_all
+    from microg_env.rollout.spec import RunSpec
+
+    for controller in ("pid", "pid-dom", "adaptive-dither", "residual-sac-setpoint"):
+        run(RunSpec("condition-2", controller, 0, duration_s=0.05))
+    run_all([RunSpec("condition-2", "pid", seed, duration_s=0.05) for seed in (0, 1)])
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """On a pytest-xdist worker, the slow tests first, then the quick ones, each in collection
+    order: the single tests are dealt out long ones first and the workers end on short ones, not
+    one idling while the other runs a long test. (pytest-xdist deals the groups first, largest
+    first; a group's tests run together, so a module fixture is still built once. A run without
+    workers keeps the collection order, each file's tests together.)"""
+    if hasattr(config, "workerinput"):
+        items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
+@pytest.hookimpl(optionalhook=True)  # a run without pytest-xdist has no such hook
 def pytest_xdist_make_scheduler(config: pytest.Config, log):
     """``--dist loadgroup``: pytest-xdist deals the tests out one by one, but those of a group in
     :data:`GROUPS` as one unit. (pytest-xdist's own ``xdist_group`` marks are not read: with pytest
@@ -54,7 +83,7 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):
 
     class GroupScheduling(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            return next((group for start, group in GROUPS.items() if nodeid.startswith(start)), nodeid)
+            return group_of(nodeid) or nodeid
 
     return GroupScheduling(config, log)
 

@@ -36,16 +36,26 @@ def test_ruff_is_clean(args):
 def test_every_file_whose_tests_share_a_module_fixture_runs_on_one_worker():
     """The README's ``--dist loadgroup`` runs a group of tests/conftest.py's GROUPS on one worker; a
     file with a module-scoped fixture left out would build it on each worker that takes one of its
-    tests, and rebuild it whenever that worker's tests of the file are not consecutive."""
+    tests. Every entry names a test file, or a test function in it."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("suite_conftest", REPO / "tests" / "conftest.py")
     conftest = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(conftest)
+    module_fixture = re.compile(r"@pytest\.fixture\([^)]*scope=[\"']module[\"']")
     fixtures = {
         path.relative_to(REPO).as_posix()
         for path in (REPO / "tests").rglob("test_*.py")
-        if re.search(r"@pytest\.fixture\(scope=\"module\"", path.read_text(encoding="utf-8"))
+        if module_fixture.search(path.read_text(encoding="utf-8"))
     }
-    assert fixtures
-    assert fixtures <= {start.split("::")[0] for start in conftest.GROUPS}, fixtures
+    assert "tests/paper/test_calibration.py" in fixtures
+    assert fixtures <= {entry for entry in conftest.GROUPS if "::" not in entry}, fixtures
+    for entry in conftest.GROUPS:
+        path, _, name = entry.partition("::")
+        assert (REPO / path).is_file(), entry
+        assert not name or re.search(rf"^def {name}\(", (REPO / path).read_text(encoding="utf-8"), re.M), entry
+    name = "tests/rollout/test_processes.py::test_a_killed_campaign_leaves_no_ray_process_behind_and_resumes_whole"
+    assert conftest.group_of(f"{name}[SIGKILL]") == "ray"
+    assert conftest.group_of(f"{name}_too[SIGKILL]") is None
+    assert conftest.group_of("tests/test_install.py::test_wheel") == "tests/test_install.py"
+    assert conftest.group_of("tests/test_install2.py::test_wheel") is None

@@ -127,8 +127,9 @@ def controllers(env_id: str, policy: str, seed: int) -> dict[str, object]:
 
 
 def run_ladder(env_id: str, policy: str, seeds: Sequence[int]) -> list[Rung]:
-    """Every rung on every seed, as rigs of one batch (each the single environment's episode, bit
-    for bit; the random rung's one generator is drawn from across its rigs)."""
+    """Every rung on every seed, as rigs of batches (:func:`~microg_env.rollout.batch.run_batch`:
+    each the single environment's episode, bit for bit; the random rung's one generator is drawn
+    from across its rigs, so its draws depend on how the rigs are batched)."""
     rungs = controllers(env_id, policy, seeds[0])
     episodes = [EpisodeSpec(controller, None, seed) for controller in rungs.values() for seed in seeds]
     runs = iter(run_batch(episodes, speed_settings(env_id)))

@@ -37,7 +37,16 @@ import numpy as np
 from microg_env import validate
 from microg_env.compiled import jit
 from microg_env.controllers.base import VectorController
-from microg_env.controllers.pid import PID, X_RATE, PIDGains, X, controller_config, load_gains, pid_command
+from microg_env.controllers.pid import (
+    LOOP_MAX_SPEED,
+    PID,
+    X_RATE,
+    PIDGains,
+    X,
+    controller_config,
+    load_gains,
+    pid_command,
+)
 from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, SCALES
 from microg_env.params import RigParams
 from microg_env.sim.model import drive_inertia_kg_m2, flexible_unit, speed_loop_gains
@@ -179,7 +188,7 @@ def feedforward_actions(
     """The feed-forward's actions (command / max_speed) for observations ``rows`` of rigs ``ids``,
     into ``out``; ``plant``: each rig's model (rows of :func:`plant_model`); ``loop``: its PID's
     (:meth:`PID.loop`)."""
-    max_speed = loop[-1]
+    max_speed = loop[LOOP_MAX_SPEED]
     for j in range(ids.size):
         i = ids[j]
         model = plant[i]

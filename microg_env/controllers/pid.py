@@ -81,7 +81,7 @@ class PID(VectorController):
         self.control_period_s = control_period_s
         self.derivative_on_measurement = derivative_on_measurement
         alpha = control_period_s / (gains.derivative_filter_s + control_period_s)  # the derivative's filter
-        #: The loop's constants, in the order :func:`pid_command` takes them.
+        #: The loop's constants, in the order :meth:`loop` gives them after its state.
         self.constants = tuple(
             float(value)  # floats, whatever numbers the gains were given as: one compiled signature
             for value in (
@@ -103,6 +103,10 @@ class PID(VectorController):
         """:func:`pid_command`'s ``loop``: this loop's state (setpoint, integral and filtered
         derivative, one entry per rig) and its constants (:attr:`constants`)."""
         return (self.setpoint_m, self._integral, self._derivative, *self.constants)
+
+
+#: Where :meth:`PID.loop`'s tuple holds the drive's maximum speed, m/s (the action's unit).
+LOOP_MAX_SPEED = 9
 
 
 @jit
@@ -128,7 +132,7 @@ def pid_command(i, x, rate, bias, loop):
 def pid_actions(rows, ids, scales, on_measurement, loop, out):
     """The PID's actions (command / max_speed) for observations ``rows`` of rigs ``ids``, into
     ``out``; ``loop`` is :meth:`PID.loop`'s tuple."""
-    max_speed = loop[-1]
+    max_speed = loop[LOOP_MAX_SPEED]
     for j in range(ids.size):
         x = rows[j, X] * scales[X]
         if on_measurement:

@@ -278,3 +278,13 @@ def test_the_dither_takes_out_the_compensation_error_the_friction_leaves(frictio
 def test_a_controller_refuses_a_control_period_the_rig_cannot_run(period):
     with pytest.raises(ValueError, match="control_period_s"):
         make_controller("pid", period)
+
+
+def test_the_pid_kernels_read_the_drives_speed_where_the_loop_holds_it():
+    """pid_actions and feedforward_actions scale their command by the loop's entry LOOP_MAX_SPEED."""
+    from microg_env.controllers.pid import LOOP_MAX_SPEED
+    from microg_env.interface import MAX_SPEED_M_S
+
+    loop = make_controller("pid", PERIOD).loop()
+    assert len(loop) == LOOP_MAX_SPEED + 1
+    assert loop[LOOP_MAX_SPEED] == MAX_SPEED_M_S

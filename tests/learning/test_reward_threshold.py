@@ -6,6 +6,7 @@ import pytest
 
 import microg_env  # noqa: F401  (registers the environments)
 from microg_env.envs.period import x_reward
+from microg_env.task import TaskSettings
 
 #: The draws each threshold is the mean return over: seeds 1000-1099 (training/returns_table.py).
 FIRST_SEED, RIGS = 1000, 100
@@ -45,13 +46,11 @@ def _return(x_m: np.ndarray, scale_m: float, limit_m: float, period: int) -> flo
         # one base (adaptive-dither) and one draw: one run scored at each id's reward scale
         ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v7"),
     ],
-    ids=lambda ids: "+".join(env_id.rsplit("-", 1)[1] for env_id in ids),
+    ids=lambda env_ids: "+".join(env_id.rsplit("-", 1)[1] for env_id in env_ids),
 )
 def test_the_reward_threshold_is_the_zero_residuals_measured_return(env_ids):
     """Each base's reward_threshold is its zero residual's mean return over the id's own draws,
     seeds 1000-1099, rounded down (as ``training/returns_table.py`` measures it)."""
-    from microg_env.task import TaskSettings
-
     specs = [gym.spec(env_id) for env_id in env_ids]
     for spec in specs[1:]:  # the same draws and base; a zero action passes either gate as 0
         differ = {k for k in {*spec.kwargs, *specs[0].kwargs} if spec.kwargs.get(k) != specs[0].kwargs.get(k)}
@@ -85,4 +84,5 @@ def test_the_returns_scored_from_x_are_those_the_environment_pays():
         total += reward
         done = terminated or truncated
     limit = as_registered.unwrapped.core.x_limit_m
-    assert _return(np.array(x), 1e-6, limit, period) == pytest.approx(total, rel=1e-12)
+    scale = gym.spec(env_id).kwargs["reward_scale_m"]
+    assert _return(np.array(x), scale, limit, period) == pytest.approx(total, rel=1e-12)

@@ -48,7 +48,7 @@ def test_the_fit_stops_soon_after_it_converges(fit_and_count):
     """At the optimum every step is refused (the residuals are rough at the physics step); the
     solver used to try some 140 regularisers there, 161 evaluations of three landings in a fit."""
     fit, evaluations = fit_and_count
-    assert evaluations <= 3 * (fit.iterations + 1) + 20, evaluations
+    assert 3 * fit.iterations <= evaluations <= 3 * (fit.iterations + 1) + 20, evaluations
 
 
 @pytest.mark.slow
@@ -84,6 +84,7 @@ def test_stored_pads_are_what_the_calibration_gives(name, source, fit):
     assert stored_pads()[name]["source"] == source
     assert stored.stiffness_n_per_m == pytest.approx(fresh.stiffness_n_per_m, rel=1e-3)
     assert stored.damping_n_s_per_m == pytest.approx(fresh.damping_n_s_per_m, rel=1e-3)
+    assert stored.iterations == fresh.iterations
     np.testing.assert_allclose(stored.max_deformation_pct, fresh.max_deformation_pct, atol=0.01)
     np.testing.assert_allclose(stored.collision_accel_pct, fresh.collision_accel_pct, atol=0.01)
 
