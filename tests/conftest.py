@@ -3,6 +3,7 @@
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import gymnasium as gym
@@ -46,30 +47,28 @@ def group_of(nodeid: str) -> str | None:
     return None
 
 
+#: A few short runs that compile every numba kernel of the package into its cache.
+WARM_UP = """
+from microg_env.rollout.runner import run, run_all
+from microg_env.rollout.spec import RunSpec
+
+for controller in ("pid", "pid-dom", "adaptive-dither", "residual-sac-setpoint"):
+    run(RunSpec("condition-2", controller, 0, duration_s=0.05))
+run_all([RunSpec("condition-2", "pid", seed, duration_s=0.05) for seed in (0, 1)])
+"""
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """Before pytest-xdist starts its workers: compile the package's numba kernels into their cache
-    (:mod:`microg_env.compiled`) with a few short runs, once. On a fresh clone every process that
-    found the cache empty compiled them itself, about 13 CPU-seconds each: the two workers and the
-    commands, Ray workers and process pools the first slow tests start (CI: 1300 CPU-seconds against
-    860 with the cache warm)."""
+    (:mod:`microg_env.compiled`), once, here (the tree the tests import) and in a process started
+    outside the tree (the installed copy, which commands run from other folders import). On a fresh
+    clone every process that found a cache empty compiled the kernels itself, about 13 CPU-seconds
+    each: the workers, and the commands, Ray workers and process pools the tests start."""
     if not getattr(config.option, "numprocesses", None) or hasattr(config, "workerinput"):
         return
-    from microg_env.rollout.runner import run, run_all
-    from microg_env.rollout.spec import RunSpec
-
-    for controller in ("pid", "pid-dom", "adaptive-dither", "residual-sac-setpoint"):
-        run(RunSpec("condition-2", controller, 0, duration_s=0.05))
-    run_all([RunSpec("condition-2", "pid", seed, duration_s=0.05) for seed in (0, 1)])
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """On a pytest-xdist worker, the slow tests first, then the quick ones, each in collection
-    order: the single tests are dealt out long ones first and the workers end on short ones, not
-    one idling while the other runs a long test. (pytest-xdist deals the groups first, largest
-    first; a group's tests run together, so a module fixture is still built once. A run without
-    workers keeps the collection order, each file's tests together.)"""
-    if hasattr(config, "workerinput"):
-        items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    exec(WARM_UP, {})
+    with tempfile.TemporaryDirectory() as folder:
+        subprocess.run([sys.executable, "-c", WARM_UP], cwd=folder, check=True, capture_output=True, timeout=600)
 
 
 @pytest.hookimpl(optionalhook=True)  # a run without pytest-xdist has no such hook
