@@ -30,6 +30,8 @@ _EXPORTS = {
     "build_pad_test": "microg_env.sim.model",
     "build_rig": "microg_env.sim.model",
     "drop_test": "microg_env.sim.drop",
+    "load_rig": "microg_env.rigs",
+    "read_rig": "microg_env.rigs",
     "static_sink": "microg_env.sim.drop",
 }
 if TYPE_CHECKING:  # the same names for type checkers (tests/cli/test_cli.py checks they agree)
@@ -37,6 +39,8 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/cli/test_cli.py che
     from microg_env.imperfections import DomainRandomization as DomainRandomization
     from microg_env.imperfections import Imperfections as Imperfections
     from microg_env.params import RigParams as RigParams
+    from microg_env.rigs import load_rig as load_rig
+    from microg_env.rigs import read_rig as read_rig
     from microg_env.scenarios import CONDITIONS as CONDITIONS
     from microg_env.scenarios import LoadStep as LoadStep
     from microg_env.scenarios import Scenario as Scenario

@@ -15,12 +15,18 @@ import functools
 import os
 import shutil
 import stat
+import sys
 import tempfile
 from collections.abc import Callable, Hashable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 from microg_env.validate import fault, shown
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
 
 #: Marker written last into a staging folder: its presence means the folder is complete.
 _COMPLETE = ".complete"
@@ -50,6 +56,22 @@ def read_settings_text(path: str | Path, what: str) -> str:
             return stream.read(MAX_SETTINGS_BYTES + 1)[:MAX_SETTINGS_BYTES]
     except (OSError, UnicodeDecodeError) as error:
         raise ValueError(f"{what} {str(path)!r} cannot be read: {error}") from None
+
+
+def parse_toml(text: str) -> dict[str, Any]:
+    """The data of a TOML text (``tomllib``, or ``tomli`` on Python 3.10); a ValueError
+    (``TOMLDecodeError``) with the line where it is not TOML."""
+    return tomllib.loads(text)
+
+
+def read_toml(path: str | Path, what: str) -> dict[str, Any]:
+    """The data of the TOML file ``path`` (read as :func:`read_settings_text` reads); a ValueError
+    names ``what``, the file and the fault."""
+    text = read_settings_text(path, what)
+    try:
+        return parse_toml(text)
+    except ValueError as error:
+        raise ValueError(f"{what} {shown(str(path))} is not valid TOML: {fault(error)}") from None
 
 
 #: YAML 1.2's floats, added to PyYAML's YAML 1.1 ones, which read an exponent without a point

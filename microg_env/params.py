@@ -471,6 +471,28 @@ def parameter_paths(params: RigParams | None = None) -> dict[str, object]:
     return paths
 
 
+def typed_overrides(name: str, values: Mapping[str, object]) -> dict[str, object]:
+    """``values`` by dotted path, each checked against the paper's rig: a known path, a value of its
+    default's type (an integer for a float is taken as that float), finite unless its default is
+    not; a ValueError naming ``name`` and the path otherwise. The values' own ranges and how they
+    combine are :func:`with_overrides`' to check."""
+    validate.instance(name, values, Mapping)
+    defaults = parameter_paths()
+    out: dict[str, object] = {}
+    for path, value in sorted(values.items()):
+        if path not in defaults:
+            raise ValueError(f"{name}: unknown parameter {validate.shown(path)}; known: {', '.join(sorted(defaults))}")
+        kind = type(defaults[path])
+        if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+            raise ValueError(f"{name}: {path} must be a {kind.__name__}, got {validate.shown(value)}")
+        if kind is float and not math.isfinite(value) and value != defaults[path]:  # an infinite default: itself
+            raise ValueError(f"{name}: {path} must be finite, got {validate.shown(value)}")
+        out[path] = value
+    return out
+
+
 def with_overrides(params: RigParams, overrides: Mapping[str, object]) -> RigParams:
     """``params`` with the values at the given dotted paths replaced (validated as usual; the
     values of one part are replaced together, so related limits may move together)."""

@@ -28,7 +28,14 @@ from microg_env.interface import (
     residual_gate,
     residual_gate_point,
 )
-from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams
+from microg_env.params import (
+    CONTROL_PERIOD_RANGE_S,
+    CONTROL_PERIOD_S,
+    PHYSICS_STEP_S,
+    RigParams,
+    typed_overrides,
+    with_overrides,
+)
 from microg_env.scenarios import Scenario, ScenarioSampler
 from microg_env.scenarios import condition as paper_condition
 from microg_env.sim.model import check_physics_step
@@ -106,8 +113,9 @@ class TaskSettings(ActingSettings):
     """The task's settings, checked and normalised when made (how a policy acts, the
     :class:`ActingSettings` it extends, among them): ``scenario_sampler``,
     ``imperfections`` and ``domain_randomization`` become their records (a name, a mapping or
-    True as the environment's keywords accept), ``params`` a :class:`RigParams`; an invalid value
-    raises a :class:`~microg_env.validate.FieldError` naming it."""
+    True as the environment's keywords accept), ``params`` a :class:`RigParams` (given as one, or as
+    overrides of the paper's rig by dotted path, as a rig file holds them); an invalid value raises
+    a :class:`~microg_env.validate.FieldError` naming it."""
 
     condition: int = 1
     scenario: Scenario | None = None
@@ -117,7 +125,7 @@ class TaskSettings(ActingSettings):
     imperfections: Imperfections | Mapping | None = None
     domain_randomization: DomainRandomization | Mapping | bool | str | None = None
     sensor_set: str = "extended"
-    params: RigParams | None = None
+    params: RigParams | Mapping | None = None
     xml_file: str | None = None
     reward_scale_m: float = 1e-8
     reward_descent_weight: float = 0.0
@@ -141,6 +149,8 @@ class TaskSettings(ActingSettings):
         put("imperfections", _imperfections(self.imperfections))
         put("domain_randomization", _randomization(self.domain_randomization))
         validate.choice("sensor_set", self.sensor_set, (*SENSOR_SETS, MIXED_SENSORS))
+        if isinstance(self.params, Mapping):  # overrides by dotted path (a hyperparameter file's, a card's)
+            put("params", with_overrides(RigParams(), typed_overrides("params", self.params)))
         put("params", RigParams() if self.params is None else self.params)
         validate.instance("params", self.params, RigParams)
         missing = SENSOR_SETS.get(self.sensor_set, ())  # mixed: each episode draws a set

@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "microg_env"
 LAYERS = (
     ("validate", "compiled", "version", "workers"),
     ("files", "params"),
-    ("scenarios", "trajectory"),
+    ("rigs", "scenarios", "trajectory"),
     ("sim",),
     ("imperfections",),
     ("interface", "task"),  # the env-controller contract, and the task settings it is made with

@@ -1,5 +1,5 @@
 """What every ``microg`` command shares: one-line usage errors, option types with bounds, options
-naming the errors they cause, the pad options, output-folder checks, the progress bar."""
+naming the errors they cause, the rig and pad options, output-folder checks, the progress bar."""
 
 from __future__ import annotations
 
@@ -62,6 +62,17 @@ RUN_OPTIONS = {
     "stiffness_n_per_m": "--stiffness",
     "damping_n_s_per_m": "--damping",
 }
+
+
+def run_options(args: argparse.Namespace) -> dict[str, str]:
+    """:data:`RUN_OPTIONS` for this command line: a pad value that ``--rig``'s file gave (no pad
+    option given) is blamed on ``--rig``."""
+    if getattr(args, "rig", None) is None or args.pad != "paper":
+        return RUN_OPTIONS
+    given = {"stiffness_n_per_m": args.stiffness, "damping_n_s_per_m": args.damping}
+    return RUN_OPTIONS | {name: "--rig" for name, value in given.items() if value is None}
+
+
 #: The same for ``microg drop``, whose errors may name several options.
 DROP_OPTIONS = {
     "mass": "--mass",
@@ -199,6 +210,32 @@ def pad_from_options(args: argparse.Namespace):
     except ValueError as error:
         raise naming(error, RUN_OPTIONS) from None
     return pad
+
+
+def add_rig_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--rig",
+        metavar="RIG.toml",
+        help="a rig file: the parameters in which your rig differs from the paper's (docs/model.md, Rig files)",
+    )
+
+
+def rig_overrides(args: argparse.Namespace) -> dict[str, object]:
+    """The overrides of ``--rig``'s file by dotted path (none without it), with the pad of
+    ``--pad``, ``--stiffness`` and ``--damping`` where one of them is given; a bad file is named
+    with the option."""
+    overrides: dict[str, object] = {}
+    if getattr(args, "rig", None) is not None:
+        from microg_env.rigs import read_rig
+
+        try:
+            overrides = read_rig(args.rig).overrides
+        except ValueError as error:
+            raise ValueError(f"--rig: {error}") from None
+    if hasattr(args, "pad") and (args.pad != "paper" or args.stiffness is not None or args.damping is not None):
+        pad = pad_from_options(args)
+        overrides |= {f"pad.{name}": getattr(pad, name) for name in ("stiffness_n_per_m", "damping_n_s_per_m")}
+    return overrides
 
 
 def add_pad_options(parser: argparse.ArgumentParser) -> None:

@@ -12,10 +12,12 @@ from pathlib import Path
 from microg_env.cli.common import (
     MAX_SEED,
     add_duration_option,
+    add_rig_option,
     check_writable_folder,
     comma_list,
     count,
     progress_bar,
+    rig_overrides,
     seed_number,
 )
 from microg_env.experiments.comparison_settings import (
@@ -49,6 +51,7 @@ _RUN_FIELDS = {
     "--eval-freq": "eval_freq",
     "--eval-episodes": "eval_episodes",
     "--checkpoint-freq": "checkpoint_freq",
+    "--rig": "rig",
 }
 
 
@@ -155,6 +158,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             f"--first-seed: {first_seed} with --seeds {args.seeds} runs seed {last} (each scenario its own block of "
             f"{MAX_SEEDS}), above {MAX_SEED}"
         )
+    overrides = rig_overrides(args)
     if args.out is not None:
         comparison_report.figure_class()  # fail now, not after the runs, if matplotlib is missing
         comparison_report.check_output(args.out)
@@ -169,6 +173,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             duration_s=args.duration,
             reference=reference,
             sensor_set=args.sensors,
+            overrides=overrides,
             workers=args.workers,
             progress=bar.update,
         ).relabelled(labels)
@@ -210,6 +215,7 @@ def add_commands(commands) -> None:
         metavar="FILE",
         help="hyperparameter file in rl-baselines3-zoo's format (default: the packaged <algo>.yml)",
     )
+    add_rig_option(train)
     train.add_argument("--log-folder", metavar="DIR", help=f"where runs go (default {defaults.log_folder})")
     train.add_argument(
         "--eval-freq", type=count(), metavar="N", help=f"steps between evaluations (default {defaults.eval_freq})"
@@ -306,6 +312,7 @@ def add_commands(commands) -> None:
         metavar="N",
         help="threads stepping the batch of rigs, processes for the ideal references (default: every core)",
     )
+    add_rig_option(compare)
     compare.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     compare.add_argument(
         "--out", metavar="DIR", help="also write comparison.md, comparison.json and figures to DIR (replaced)"

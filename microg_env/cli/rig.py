@@ -10,21 +10,22 @@ import json
 import math
 import os
 import threading
-from dataclasses import replace
 from pathlib import Path
 
 from microg_env.cli.common import (
     DROP_OPTIONS,
-    RUN_OPTIONS,
     add_duration_option,
     add_pad_options,
     add_physics_step_option,
+    add_rig_option,
     controller_name,
     count,
     naming,
     number,
     pad_from_options,
     progress_bar,
+    rig_overrides,
+    run_options,
     seed_number,
 )
 from microg_env.imperfections import IMPERFECTION_NAMES
@@ -92,17 +93,17 @@ def _cmd_drop(args: argparse.Namespace) -> int:
 
 def _cmd_export_mjcf(args: argparse.Namespace) -> int:
     from microg_env.files import check_output_file, write_text
-    from microg_env.params import RigParams
+    from microg_env.params import RigParams, with_overrides
     from microg_env.sim.limits import check_pad_model
     from microg_env.sim.model import export_spec
 
     output = check_output_file(args.output, "FILE", (".xml",))
-    params = replace(RigParams(), pad=pad_from_options(args))
+    params = with_overrides(RigParams(), rig_overrides(args))
     step = args.physics_step / 1e6  # 10 * 1e-6 is 9.999999999999999e-06, below the 10 us floor
     try:
         check_pad_model(params.pad, params.lander.mass_kg + sum(args.load), step, "export-mjcf")
     except ValueError as error:
-        raise naming(error, RUN_OPTIONS) from None
+        raise naming(error, run_options(args)) from None
     spec = export_spec(params, tuple(args.load), physics_step_s=step)
     write_text(output, spec.to_xml())
     print(f"wrote {output}")
@@ -111,17 +112,11 @@ def _cmd_export_mjcf(args: argparse.Namespace) -> int:
 
 def _run_spec(args: argparse.Namespace):
     """The run ``microg run``'s options describe."""
-    from microg_env.params import RigParams
     from microg_env.rollout.spec import RunSpec
 
     if args.randomize and args.no_imperfections:
         raise ValueError("--randomize: a rig with --no-imperfections has nothing to randomise; give one of them")
-    pad, paper = pad_from_options(args), RigParams().pad
-    overrides = {
-        f"pad.{name}": getattr(pad, name)
-        for name in ("stiffness_n_per_m", "damping_n_s_per_m")
-        if getattr(pad, name) != getattr(paper, name)
-    }
+    overrides = rig_overrides(args)
     return RunSpec(
         scenario=f"condition-{args.condition}",
         controller=args.controller,
@@ -142,12 +137,16 @@ def _format_row(label: str, values: list[float], scale: float, spec: str) -> str
     return f"  {label:<36}{cells}"
 
 
-def _print_run(scenario, pad, args: argparse.Namespace, m) -> None:
+def _print_run(scenario, params, args: argparse.Namespace, m) -> None:
     from microg_env.analysis.metrics import INSTANT_WINDOWS_S, in_flight_weights
 
+    pad = params.pad
+    rig = "the paper's rig" if args.rig is None else f"rig {args.rig}"
     print(
         f"{scenario.name}: loads {scenario.loads_text}; descent from {scenario.descent_height_m * 1e3:g} mm; "
-        f"{args.pad} pad (K = {pad.stiffness_n_per_m:.1f} N/m, D = {pad.damping_n_s_per_m:.1f} N s/m); "
+        f"{rig}, lander {params.lander.mass_kg:g} kg, "
+        f"{'' if args.rig is not None else args.pad + ' '}pad (K = {pad.stiffness_n_per_m:.1f} N/m, "
+        f"D = {pad.damping_n_s_per_m:.1f} N s/m); "
         f"controller {args.controller}; seed {args.seed}; {scenario.duration_s:g} s at "
         f"{args.control_period:g} us (physics step {args.physics_step:g} us); "
         f"imperfections {'off' if args.no_imperfections else 'on'}"
@@ -173,7 +172,8 @@ def _print_run(scenario, pad, args: argparse.Namespace, m) -> None:
     for window, change in zip(INSTANT_WINDOWS_S, m.x_change_after_touchdown_m, strict=True):
         print(_format_row(f"x change, {window * 1e3:g} ms from touchdown [um]", [change], 1e6, ".3f"))
     print(_format_row("support force variation [N]", [m.support_force_variation_n], 1.0, ".4f"))
-    print(_format_row("servo RMS torque [N m] (rated 48)", [m.servo_rms_torque_n_m], 1.0, ".3f"))
+    rated = f"servo RMS torque [N m] (rated {params.servo.rated_torque_n_m:g})"
+    print(_format_row(rated, [m.servo_rms_torque_n_m], 1.0, ".3f"))
     print(f"{'first landing':<38}{'rig':>12}{'ideal':>12}")
     print(_format_row("peak pad deformation [mm]", [m.max_deformation_m, m.reference_max_deformation_m], 1e3, ".3f"))
     print(
@@ -201,7 +201,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     try:
         spec = _run_spec(args)
     except ValueError as error:
-        raise naming(error, RUN_OPTIONS) from None
+        raise naming(error, run_options(args)) from None
     video, render = None, None
     if args.video is not None:
         from microg_env.analysis.video import VIDEO_SIZE, VIDEO_SUFFIXES, LandingVideo, check_video_support
@@ -222,7 +222,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     try:
         result = run(spec, on_step=video, on_progress=progress, render=render)
     except ValueError as error:
-        raise naming(error, RUN_OPTIONS) from None
+        raise naming(error, run_options(args)) from None
     finally:
         for bar in bars:
             bar.close()
@@ -230,7 +230,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(metrics.as_dict(), indent=2))
     else:
-        _print_run(trajectory.scenario, spec.rig_params().pad, args, metrics)
+        _print_run(trajectory.scenario, spec.rig_params(), args, metrics)
     if plot is not None:
         from microg_env.analysis.plots import plot_run
 
@@ -251,7 +251,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
     try:
         spec = _run_spec(args)
     except ValueError as error:
-        raise naming(error, RUN_OPTIONS) from None
+        raise naming(error, run_options(args)) from None
     check_display()
     view = LiveView(f"microg: {spec.scenario_schedule().name}, {args.controller}, seed {args.seed}", args.speed)
     try:
@@ -260,10 +260,10 @@ def _cmd_view(args: argparse.Namespace) -> int:
         print("microg view: the window was closed before the run ended")
         return 0
     except ValueError as error:
-        raise naming(error, RUN_OPTIONS) from None
+        raise naming(error, run_options(args)) from None
     finally:
         view.close()
-    _print_run(result.trajectory.scenario, spec.rig_params().pad, args, result.metrics)
+    _print_run(result.trajectory.scenario, spec.rig_params(), args, result.metrics)
     return 0
 
 
@@ -375,6 +375,7 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--randomize", action="store_true", help="a randomised plant (lander, pad, friction, weights) drawn from --seed"
     )
+    add_rig_option(parser)
     add_pad_options(parser)
 
 
@@ -480,6 +481,7 @@ def add_commands(commands) -> None:
         metavar="KG",
         help="add a test weight (in the model, held off the lander as at an episode's start)",
     )
+    add_rig_option(export)
     add_pad_options(export)
     add_physics_step_option(export)
     export.set_defaults(handler=_cmd_export_mjcf)

@@ -17,7 +17,6 @@ The loop holds x at ``setpoint_m`` (0: the rig's purpose); the environment's res
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass, fields
 from importlib import resources
 from typing import Any, ClassVar
@@ -26,13 +25,8 @@ import numpy as np
 
 from microg_env.compiled import jit
 from microg_env.controllers.base import VectorController
+from microg_env.files import parse_toml
 from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, SCALES
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
-
 
 #: Observation columns the feedback loops read.
 X, X_RATE, SUPPORT_VELOCITY = (OBSERVATION_INDEX[name] for name in ("x", "x_rate", "support_velocity"))
@@ -58,7 +52,7 @@ class PIDGains:
 def controller_config(name: str) -> dict[str, Any]:
     """The tuned settings of controller ``name`` from config/controllers.toml."""
     text = resources.files("microg_env").joinpath("config", "controllers.toml").read_text(encoding="utf-8")
-    table = tomllib.loads(text)
+    table = parse_toml(text)
     if name not in table:
         raise ValueError(f"no settings for controller {name!r}; known: {', '.join(sorted(table))}")
     return table[name]

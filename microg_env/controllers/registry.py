@@ -106,7 +106,7 @@ def make_controller(
         if name in FEEDFORWARDS:
             return FEEDFORWARDS[name](control_period_s, params, gains=tuned)
         return PID(tuned, control_period_s, derivative_on_measurement=name == "pid-dom")
-    return load_policy(policy_folder(name), control_period_s, sensor_set, digest)
+    return load_policy(policy_folder(name), control_period_s, sensor_set, digest, params)
 
 
 def policy_card(folder: str | Path) -> dict[str, Any]:
@@ -236,13 +236,18 @@ def check_policy_folder(folder: str | Path) -> tuple[dict[str, Any], MLPPolicy]:
 
 
 def load_policy(
-    folder: str | Path, control_period_s: float, sensor_set: str = "extended", digest: str | None = None
+    folder: str | Path,
+    control_period_s: float,
+    sensor_set: str = "extended",
+    digest: str | None = None,
+    params: RigParams | None = None,
 ) -> PolicyController:
     """The exported policy in ``folder`` as a controller; it must run at the control period it
     was trained at (its decision period and base controller's tuning are tied to it), on a rig of
     a ``sensor_set`` that reads what it read in training (:func:`check_sensor_set`). With ``digest``
     (the contents a run was specified with, :func:`controller_digest`) its files must still read so
-    once loaded: a run is never of a policy other than the one its identity names."""
+    once loaded: a run is never of a policy other than the one its identity names. ``params``: the
+    nominal rig its base controller assumes, as :func:`make_controller`'s."""
     card, policy = check_policy_folder(folder)
     if digest is not None and folder_digest(folder) != digest:
         raise ValueError(
@@ -258,19 +263,23 @@ def load_policy(
             f"{trained_period * 1e6:g} us and runs only at that period",
             "control_period_s",
         )
-    return deployed_controller(policy, env)
+    return deployed_controller(policy, env, params=params)
 
 
 def deployed_controller(
-    policy: Any, env_kwargs: Mapping[str, Any], controller: type[PolicyController] = PolicyController
+    policy: Any,
+    env_kwargs: Mapping[str, Any],
+    controller: type[PolicyController] = PolicyController,
+    params: RigParams | None = None,
 ) -> PolicyController:
     """``policy``, trained in ``MicroGravityLanding-v1`` with ``env_kwargs``, as the controller it
     is deployed as (a ``controller``, :class:`PolicyController` or a subclass of it): acting as its
-    :class:`~microg_env.task.ActingSettings` say, on its base controller in residual mode, shown what
-    it was shown in training (:func:`deployed_hidden`)."""
+    :class:`~microg_env.task.ActingSettings` say, on its base controller in residual mode (assuming
+    the nominal rig ``params``, default the paper's), shown what it was shown in training
+    (:func:`deployed_hidden`)."""
     acting = ActingSettings.of(env_kwargs)
     period = float(env_kwargs.get("control_period_s", TASK_DEFAULTS["control_period_s"]))
-    base = make_controller(acting.base_controller, period) if acting.action_mode == "residual" else None
+    base = make_controller(acting.base_controller, period, params) if acting.action_mode == "residual" else None
     return controller(policy, replace(acting, hidden_observations=deployed_hidden(env_kwargs)), base, period)
 
 

@@ -182,7 +182,7 @@ class LandingCore:
         self._accel_adr = int(model.sensor_adr[model.sensor("lander_accel").id]) + 2
         self._force_adr = int(model.sensor_adr[model.sensor("pad_force").id])
         self.base = (
-            make_controller(self.settings.base_controller, self.settings.control_period_s)
+            make_controller(self.settings.base_controller, self.settings.control_period_s, self.base_params)
             if self.settings.action_mode == "residual"
             else None
         )

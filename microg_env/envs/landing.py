@@ -134,7 +134,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
     | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force, accelerometer read 0); ``"mixed"``: drawn |
     | ``hidden_observations`` | observation entries the agent is shown as 0 (a residual's base reads them) |
-    | ``params`` | the rig (the scenario's explicit overrides are applied on top) |
+    | ``params`` | the rig: ``RigParams`` (``load_rig`` reads a rig file) or overrides by dotted path |
     | ``xml_file`` | an MJCF template other than the packaged ``scene.xml`` |
     | ``reward_scale_m`` | x0 of the reward, m |
     | ``reward_descent_weight`` | the reward's share paid for the descent's velocity error (see Rewards) |

@@ -5,6 +5,7 @@ Monte Carlo draws (``samples:``) and seeds, expanded to the campaign's runs.
 
     name: period-bandwidth          # required
     description: free text
+    rig: my-rig.toml                # a rig file, relative to this file (default: the paper's rig)
     base:                           # RunSpec fields (defaults: the RunSpec's)
       scenario: condition-1
       duration_s: 7
@@ -30,7 +31,8 @@ A key names a RunSpec field (``controller``, ``control_period_us``, ...), a PID 
 (``gains.ki_per_s2``), an imperfection (``imperfections.friction``) or a rig parameter by dotted
 path (``qzs.guide_friction_n``). Keys joined by commas vary together: each value is a list of
 one value per key. A parameter is named once in the file (``pad.stiffness_n_per_m`` and
-``overrides.pad.stiffness_n_per_m`` are one: fixed in ``base``, swept or drawn, not two of these).
+``overrides.pad.stiffness_n_per_m`` are one: fixed in ``base``, swept or drawn, not two of these);
+the rig file's parameters hold where the file names none of them.
 Runs = grid points x samples x seeds. A Morris design takes only uniform and
 loguniform ranges (a loguniform key is gridded in its logarithm) and is drawn by
 :func:`morris_design`, whose unit coordinates the sensitivity page reads back
@@ -65,7 +67,7 @@ DISTRIBUTIONS = {
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 #: Most runs one campaign may hold.
 MAX_RUNS = 1_000_000
-_TOP_KEYS = ("name", "description", "base", "sweep", "samples", "seeds", "report", "batch_size")
+_TOP_KEYS = ("name", "description", "rig", "base", "sweep", "samples", "seeds", "report", "batch_size")
 #: Specs one Ray task runs as rigs of one batch at most (a task lost to Ctrl-C loses this many).
 DEFAULT_BATCH_SIZE = 16
 
@@ -140,10 +142,13 @@ class Campaign:
         _check_named_once(base, sweep, samples["draw"] if samples is not None else {})
         report = data.get("report")
         batch_size = validate.integer("batch_size", data.get("batch_size", DEFAULT_BATCH_SIZE), 1, 256)
+        base = dict(base)
+        if data.get("rig") is not None:  # the rig's parameters, under base's and the sweep's
+            base["overrides"] = _rig_overrides(data["rig"], source) | dict(base.get("overrides", {}))
         campaign = cls(
             name.strip(),
             str(data.get("description") or ""),
-            dict(base),
+            base,
             {str(k): list(v) for k, v in sweep.items()},
             samples,
             _seeds(data.get("seeds", [0])),
@@ -248,6 +253,18 @@ def _check_keys(where: str, mapping: Mapping) -> None:
 def _keys(key: str) -> list[str]:
     """The keys a sweep entry varies together (joined by commas)."""
     return [k.strip() for k in key.split(",")]
+
+
+def _rig_overrides(rig: object, source: str | None) -> dict[str, Any]:
+    """The parameters of the rig file ``rig`` (a path relative to the campaign file's folder)."""
+    from microg_env.rigs import read_rig
+
+    validate.instance("rig", rig, str)
+    path = Path(rig) if source is None else Path(source).parent / rig
+    try:
+        return read_rig(path).overrides
+    except ValueError as error:
+        raise ValueError(f"rig: {error}") from None
 
 
 def _check_named_once(base: Mapping[str, Any], sweep: Mapping[str, Any], draw: Mapping[str, Any]) -> None:

@@ -18,6 +18,7 @@ import math
 import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -119,6 +120,8 @@ class Comparison:
     sensor_set: str = "extended"  # the rig's sensors (microg_env.interface.SENSOR_SETS)
     #: Names shown for controllers (``microg compare --label``): shown name -> the controller run.
     labels: dict[str, str] = field(default_factory=dict)
+    #: The rig's parameters that differ from the paper's, by dotted path (``microg compare --rig``).
+    overrides: dict[str, Any] = field(default_factory=dict)
 
     def relabelled(self, labels: Mapping[str, str]) -> Comparison:
         """This comparison with each controller run as one of ``labels``' values shown under its key
@@ -213,6 +216,7 @@ class Comparison:
             "per_scenario": {c: {s: summaries(c, s) for s in self.scenarios} for c in self.controllers},
             "reference": self.reference,
             "sensor_set": self.sensor_set,
+            "overrides": self.overrides,
             "labels": self.labels,
             "paired": {
                 c: {name: self.paired(c, name).as_dict() for name in QUANTITIES}
@@ -264,10 +268,12 @@ def compare(
     progress: Callable[[int], None] | None = None,
     reference: str | None = None,
     sensor_set: str = "extended",
+    overrides: Mapping[str, Any] | None = None,
 ) -> Comparison:
     """Run every controller on every scenario and seed; ``progress(fraction)`` as episodes advance;
     ``reference``: one of ``controllers``, the others paired against it; ``sensor_set``: the rig's
-    sensors ("paper": no pad force, no accelerometer)."""
+    sensors ("paper": no pad force, no accelerometer); ``overrides``: the rig's parameters by dotted
+    path (a rig file's), which every controller's model assumes too."""
     known = comparison_scenarios()
     names = tuple(known) if scenarios is None else tuple(scenarios)
     for name in names:
@@ -301,6 +307,7 @@ def compare(
         duration_s,
         reference=reference,
         sensor_set=sensor_set,
+        overrides=dict(RunSpec(overrides=overrides or {}).overrides),  # checked, a default's value dropped
     )
     specs = []
     for case in cases:
@@ -316,6 +323,7 @@ def compare(
                 control_period_us=control_period_s * 1e6,
                 duration_s=length,
                 sensor_set=sensor_set,
+                overrides=comparison.overrides,
             )
         )
     results: list[CaseResult | None] = [None] * len(cases)

@@ -79,13 +79,16 @@ def render_markdown(c: Comparison) -> str:
             "",
         ]
     own_plant = ", so each episode meets a plant of its own" if c.randomize else ""
+    changed = ", ".join(f"`{path}` = {value!r}" for path, value in c.overrides.items())
+    rig = f" The rig is the paper's with {changed}." if changed else ""
     lines += [
         f"Controllers {', '.join(c.controllers)} on the same scenarios and seeds "
         f"({_count(c.seeds_per_scenario, 'seed')} per scenario, each scenario its own{own_plant}), {plant}, "
         f"every imperfection on, {SENSORS[c.sensor_set]}, control period "
-        f"{c.control_period_s * 1e6:g} us. Every scenario is held out of training:",
+        f"{c.control_period_s * 1e6:g} us.{rig} Every scenario is held out of training:",
         "",
     ]
+
     for name, scenario in c.scenarios.items():
         duration = scenario.duration_s if c.duration_s is None else min(scenario.duration_s, c.duration_s)
         seeds = c.seeds[name]

@@ -45,4 +45,5 @@ class TrainSettings:
     eval_freq: int = 100_000  # environment steps (all environments together) between evaluations
     eval_episodes: int = 5
     checkpoint_freq: int = 100_000  # environment steps between checkpoints
+    rig: str | None = None  # a rig file, whose parameters become the env_kwargs' params
     command: str = ""

@@ -60,8 +60,9 @@ from microg_env.learning.settings import (
     TRAIN_EXTRA,
     TrainSettings,
 )
-from microg_env.params import CONTROL_PERIOD_S
-from microg_env.task import ACTING_KEYS
+from microg_env.params import CONTROL_PERIOD_S, RigParams
+from microg_env.rigs import read_rig
+from microg_env.task import ACTING_KEYS, TaskSettings
 from microg_env.validate import fault, shown
 
 #: First seed of the validation episodes that choose the best model (training envs are seeded
@@ -176,6 +177,13 @@ def resolve(settings: TrainSettings) -> hp.Hyperparams:
         params = replace(params, n_timesteps=settings.timesteps)
     if settings.n_envs is not None:
         params = replace(params, n_envs=settings.n_envs)
+    if settings.rig is not None:  # on the entry's own rig parameters, if any
+        try:
+            rig = read_rig(settings.rig).overrides
+        except ValueError as error:
+            raise ValueError(f"--rig: {error}") from None
+        entry = params.env_kwargs.get("params") or {}
+        params = replace(params, env_kwargs=params.env_kwargs | {"params": dict(entry) | rig})
     check_entry(params)
     return params
 
@@ -637,6 +645,10 @@ class _Run:
             (folder / previous_buffer).unlink(missing_ok=True)  # one replay buffer is enough (and large)
         _keep_best_copy(folder, _best_steps(self.evaluations))  # a resume goes back no further
 
+    def rig(self) -> RigParams:
+        """The nominal rig trained on (the entry's ``params``): what a base controller assumes."""
+        return TaskSettings(**self.params.env_kwargs).params
+
     def validate(self, controller) -> tuple[list, float, float]:
         """The runs, failure rate and cost of ``controller`` on the validation schedules, the
         episodes the rigs of one batch."""
@@ -652,7 +664,7 @@ class _Run:
             return
         base = self.params.env_kwargs.get("base_controller", "pid")
         period = float(self.params.env_kwargs.get("control_period_s", CONTROL_PERIOD_S))
-        *_, cost = self.validate(make_controller(base, period))  # what a zero residual leaves it
+        *_, cost = self.validate(make_controller(base, period, self.rig()))  # what a zero residual leaves it
         self.state["base_cost"] = _json_number(cost)
         self.log(f"the base controller alone ({base}, a zero residual): cost {_show(cost, '.4g')}, the line to beat")
 
@@ -662,7 +674,7 @@ class _Run:
 
         normalization = model.get_vec_normalize_env()
         policy = NormalizedPolicy(model, normalization)
-        runs, failure_rate, cost = self.validate(deployed_controller(policy, self.params.env_kwargs))
+        runs, failure_rate, cost = self.validate(deployed_controller(policy, self.params.env_kwargs, params=self.rig()))
         row = {
             "timesteps": model.num_timesteps,
             "wall_s": round(self.wall_s(), 1),

@@ -15,7 +15,6 @@ MuJoCo's soft contact is linear in penetration.
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass, replace
 from importlib import resources
 
@@ -23,16 +22,12 @@ import mujoco
 import numpy as np
 from mujoco import minimize
 
+from microg_env.files import parse_toml
 from microg_env.paper.tables import PUBLISHED, experiment_relative_error_pct
 from microg_env.params import PAD_NAMES, PadParams, RigParams
 from microg_env.scenarios import CONDITIONS, Scenario
 from microg_env.sim.contact import damping_ratio
 from microg_env.sim.model import build_pad_test, pad_contact_solref
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 #: Damping ratio the search may not cross (Section 2 needs an under-damped pad).
 _MAX_DAMPING_RATIO = 0.95
@@ -179,7 +174,7 @@ def calibrate(params: RigParams | None = None, source: str = "experiment", max_i
 def stored_pads() -> dict[str, dict]:
     """The fitted pads of config/pads.toml, each with its K, D and provenance."""
     text = resources.files("microg_env").joinpath("config", "pads.toml").read_text(encoding="utf-8")
-    return tomllib.loads(text)
+    return parse_toml(text)
 
 
 def stored_calibration(name: str) -> Calibration:

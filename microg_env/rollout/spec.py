@@ -14,7 +14,6 @@ import dataclasses
 import functools
 import hashlib
 import json
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -31,7 +30,14 @@ from microg_env.imperfections import (
     check_parameters_used,
 )
 from microg_env.interface import SENSOR_SETS
-from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, RigParams, parameter_paths, with_overrides
+from microg_env.params import (
+    CONTROL_PERIOD_S,
+    PHYSICS_STEP_S,
+    RigParams,
+    parameter_paths,
+    typed_overrides,
+    with_overrides,
+)
 from microg_env.scenarios import LoadStep, Scenario, comparison_scenarios
 from microg_env.sim.model import EPISODE_PARAMETERS, check_physics_step, model_states
 from microg_env.task import check_control_period
@@ -268,23 +274,9 @@ class RunSpec:
 def _overrides(values: object) -> dict[str, Any]:
     """Dotted rig parameters, each value of its default's type (so 100 and 100.0 hash alike); a
     value equal to the default is dropped (the same run hashes alike however it is written)."""
-    validate.instance("RunSpec.overrides", values, Mapping)
     defaults = parameter_paths()
-    out = {}
-    for path, value in sorted(values.items()):
-        if path not in defaults:
-            raise ValueError(
-                f"RunSpec.overrides: unknown parameter {shown(path)}; known: {', '.join(sorted(defaults))}"
-            )
-        kind = type(defaults[path])
-        if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
-            value = float(value)
-        if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-            raise ValueError(f"RunSpec.overrides: {path} must be a {kind.__name__}, got {shown(value)}")
-        if kind is float and not math.isfinite(value) and value != defaults[path]:  # an infinite default: itself
-            raise ValueError(f"RunSpec.overrides: {path} must be finite, got {shown(value)}")
-        if value != defaults[path]:
-            out[path] = value
+    typed = typed_overrides("RunSpec.overrides", values)
+    out = {path: value for path, value in typed.items() if value != defaults[path]}
     with_overrides(RigParams(), out)  # the parameters' own checks name a bad value now
     return out
 

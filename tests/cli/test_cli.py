@@ -211,6 +211,11 @@ def _cases():
     yield ["train", "-conf", "{hyperparams}", "--env", "CartPole-v1"], "error: --env"  # not blamed on the file
     yield ["run", "--controller", "{broken_policy}"], "policy card"
     yield ["compare", "--controllers", "{no_network}"], "policy.npz"
+    # A rig file: refused before any work, named with --rig.
+    for command in ("run", "view", "compare", "train", "export-mjcf rig.xml"):
+        yield [*command.split(), "--rig", "{bad_rig}"], "--rig"
+    yield ["run", "--rig", "nowhere.toml"], "--rig"
+    yield ["run", "--rig", "{dir}"], "--rig"
 
 
 def _bad_input_folder(tmp_path: Path) -> Path:
@@ -229,6 +234,7 @@ def _bad_input_folder(tmp_path: Path) -> Path:
     (folder / "no-network").mkdir()
     (folder / "no-network" / "policy.json").write_text('{"env_kwargs": {}}')
     (folder / "ppo.yml").write_text((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())
+    (folder / "bad-rig.toml").write_text("lander.mass_kg = 3000.0\n")
     return folder
 
 
@@ -239,6 +245,7 @@ PLACES = {
     "{broken_policy}": "broken-policy",
     "{no_network}": "no-network",
     "{hyperparams}": "ppo.yml",
+    "{bad_rig}": "bad-rig.toml",
     "{dangling}": "dangling",
     "{dirlink}": "dir-link",
 }
