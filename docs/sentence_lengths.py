@@ -16,7 +16,14 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 #: The pages held to the limits.
-PAGES = ("README.md", "docs/environment.md", "docs/controllers.md", "docs/cli.md", "docs/studies.md")
+PAGES = (
+    "README.md",
+    "docs/environment.md",
+    "docs/controllers.md",
+    "docs/cli.md",
+    "docs/studies.md",
+    "docs/deployment.md",
+)
 MAX_MEDIAN_WORDS = 20
 LONG_WORDS = 40
 MAX_LONG_SHARE = 0.10

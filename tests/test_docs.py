@@ -26,7 +26,17 @@ def test_the_docs_site_builds_strictly(tmp_path):
         env=os.environ | {"NO_MKDOCS_2_WARNING": "1"},
     )
     assert result.returncode == 0, result.stderr
-    for page in ("environment", "cli", "model", "controllers", "paper", "studies", "speed", "development"):
+    for page in (
+        "environment",
+        "cli",
+        "model",
+        "controllers",
+        "deployment",
+        "paper",
+        "studies",
+        "speed",
+        "development",
+    ):
         assert (tmp_path / "site" / page / "index.html").is_file()
 
 
@@ -78,7 +88,7 @@ def test_every_name_the_docs_cite_exists():
 
 def test_the_reference_pages_are_written_in_short_sentences():
     """docs/sentence_lengths.py: median sentence at most 20 words, at most 10 % over 40, on the README,
-    environment.md, controllers.md, cli.md and studies.md; controllers.md a reference of at most 250
+    environment.md, controllers.md, cli.md, studies.md and deployment.md; controllers.md a reference of at most 250
     lines (its history is the research log's)."""
     spec = importlib.util.spec_from_file_location("sentence_lengths", REPO / "docs" / "sentence_lengths.py")
     sentence_lengths = importlib.util.module_from_spec(spec)

@@ -1,8 +1,9 @@
-"""The ``microg`` commands on learned controllers: ``train`` and ``compare``."""
+"""The ``microg`` commands on learned controllers: ``train``, ``compare`` and ``export-onnx``."""
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import shlex
@@ -28,7 +29,7 @@ from microg_env.experiments.comparison_settings import (
     scenario_seeds,
 )
 from microg_env.imperfections import PRESETS
-from microg_env.interface import CONTROLLER_NAMES
+from microg_env.interface import CONTROLLER_NAMES, shipped_policies
 from microg_env.learning.settings import (
     ALGORITHMS,
     CONTRIB_ALGORITHMS,
@@ -187,8 +188,30 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_export_onnx(args: argparse.Namespace) -> int:
+    from microg_env.files import check_output_file
+    from microg_env.interface import selects_policy
+    from microg_env.learning.onnx_export import ONNX_EXTRA, write_onnx
+
+    if importlib.util.find_spec("onnx") is None:
+        raise ValueError(ONNX_EXTRA)
+    try:
+        policy = selects_policy(args.policy)
+    except ValueError as error:
+        raise ValueError(f"POLICY: {error}") from None
+    if not policy:
+        raise ValueError(
+            f"POLICY {args.policy!r} is a classical baseline, with no network to export; give a shipped policy "
+            f"({', '.join(shipped_policies())}) or a policy folder"
+        )
+    path = check_output_file(args.file, "FILE", (".onnx",))
+    write_onnx(args.policy, path)
+    print(f"wrote {path}")
+    return 0
+
+
 def add_commands(commands) -> None:
-    """train and compare."""
+    """train, compare and export-onnx."""
     train = commands.add_parser(
         "train",
         help="train a learned controller with stable-baselines3 (rl-baselines3-zoo layout)",
@@ -319,3 +342,17 @@ def add_commands(commands) -> None:
     )
     compare.add_argument("--quiet", action="store_true", help="no progress bar")
     compare.set_defaults(handler=_cmd_compare)
+
+    export = commands.add_parser(
+        "export-onnx",
+        help="export a learned policy's network to ONNX, for a real-time loop",
+        description="Write the network of POLICY as an ONNX file: a float64 observation (N, 10) in, a float32 "
+        "action (N, 1) out, equal to the NumPy policy to 1e-6, with how the policy is deployed (decision period, "
+        "hidden entries, residual filter and gate, base controller) in its metadata; docs/deployment.md. Needs "
+        "the onnx extra.",
+    )
+    export.add_argument(
+        "policy", metavar="POLICY", help=f"a shipped policy ({', '.join(shipped_policies())}) or a policy folder"
+    )
+    export.add_argument("file", metavar="FILE", help="the ONNX file to write (.onnx; replaced if it exists)")
+    export.set_defaults(handler=_cmd_export_onnx)

@@ -215,6 +215,9 @@ def _cases():
     for command in ("run", "view", "compare", "train", "export-mjcf rig.xml"):
         yield [*command.split(), "--rig", "{bad_rig}"], "--rig"
     yield ["run", "--rig", "nowhere.toml"], "--rig"
+    yield ["export-onnx", "pid", "pid.onnx"], "POLICY"  # a baseline has no network
+    yield ["export-onnx", "no-such-policy", "p.onnx"], "POLICY"
+    yield ["export-onnx", "residual-ppo", "p.txt"], "FILE"
     yield ["run", "--rig", "{dir}"], "--rig"
 
 
