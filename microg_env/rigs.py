@@ -11,11 +11,13 @@ rig, :func:`read_rig` also the overrides and their sources.
 
 from __future__ import annotations
 
+import json
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from microg_env.files import read_toml
+from microg_env.files import read_toml, write_text
 from microg_env.params import RigParams, parameter_paths, typed_overrides, with_overrides
 from microg_env.validate import shown
 
@@ -28,7 +30,6 @@ class RigFile:
     """A rig file as read: its ``overrides`` by dotted path, the ``sources`` of those given one,
     and its ``description``."""
 
-    path: str
     overrides: dict[str, object]
     sources: dict[str, str] = field(default_factory=dict)
     description: str = ""
@@ -52,7 +53,44 @@ def read_rig(path: str | Path) -> RigFile:
     except ValueError as error:
         message = str(error)
         raise ValueError(message if message.startswith(where) else f"{where}: {message}") from None
-    return RigFile(str(path), overrides, sources, description)
+    return RigFile(overrides, sources, description)
+
+
+def rig_file_text(rig: RigFile) -> str:
+    """``rig`` as a rig file's text: its description, then a table per part, each value with its source."""
+    lines = [f"description = {_toml_value(rig.description)}"] if rig.description else []
+    parts: dict[str, list[str]] = {}
+    for path in sorted(rig.overrides):
+        part, _, name = path.rpartition(".")
+        value = _toml_value(rig.overrides[path])
+        if path in rig.sources:
+            value = f"{{ value = {value}, source = {_toml_value(rig.sources[path])} }}"
+        parts.setdefault(part, []).append(f"{name or part} = {value}")
+    lines += parts.pop("", [])  # gravity_m_s2, at the top
+    for part, entries in parts.items():
+        lines += ["", f"[{part}]", *entries]
+    return "\n".join(lines) + "\n"
+
+
+def write_rig(rig: RigFile, path: str | Path) -> None:
+    """Write ``rig`` as a rig file at ``path``, atomically; it reads back as ``rig``."""
+    write_text(path, rig_file_text(rig))
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)  # a TOML basic string (control characters escaped)
+    if isinstance(value, float) and math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return repr(value)
+
+
+def read_rig_option(path: str | Path, option: str) -> RigFile:
+    """:func:`read_rig`, its error prefixed with the ``option`` that named the file (``--rig``)."""
+    try:
+        return read_rig(path)
+    except ValueError as error:
+        raise ValueError(f"{option}: {error}") from None
 
 
 def load_rig(path: str | Path) -> RigParams:

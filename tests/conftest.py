@@ -33,6 +33,7 @@ GROUPS = {
             "tests/learning/test_training_records.py",
             "tests/paper/test_calibration.py",
             "tests/paper/test_report.py",
+            "tests/rollout/test_logs.py",
             "tests/test_install.py",
         )
     },

@@ -14,6 +14,7 @@ LAYERS = (
     ("validate", "compiled", "version", "workers"),
     ("files", "params"),
     ("rigs", "scenarios", "trajectory"),
+    ("logs",),  # a rig's logs, in the schema of its scenarios
     ("sim",),
     ("imperfections",),
     ("interface", "task"),  # the env-controller contract, and the task settings it is made with

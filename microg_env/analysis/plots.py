@@ -150,3 +150,23 @@ def _zoom(ax, trajectory: Trajectory, touchdown_s: float) -> None:
 def plot_run(trajectory: Trajectory, reference: Trajectory, title: str, path: Path) -> None:
     """``run_figure`` saved to ``path``."""
     save_figure(run_figure(trajectory, reference, title), path)
+
+
+def plot_replay(time_s: np.ndarray, log: dict[str, np.ndarray], model: dict[str, np.ndarray], title: str, path: Path):
+    """A log's ruler and encoder beside the model's replay of its commands, and the residuals
+    (model minus log; the ruler's with each window's start state removed), saved to ``path``."""
+    figure = figure_class()(figsize=(10, 8))
+    axes = figure.subplots(4, 1, sharex=True)
+    n = len(model["encoder_m"])
+    for ax, name, label in ((axes[0], "ruler_m", "x, ruler [um]"), (axes[2], "encoder_m", "support, encoder [mm]")):
+        scale = 1e6 if name == "ruler_m" else 1e3
+        ax.plot(time_s[:n], log[name][:n] * scale, color="0.5", lw=0.8, label="log")
+        ax.plot(time_s[:n], model[name] * scale, color="C0", lw=0.8, label="model")
+        ax.set_ylabel(label)
+        ax.legend(loc="upper right", fontsize=8)
+    for ax, name in ((axes[1], "ruler_m"), (axes[3], "encoder_m")):
+        ax.plot(time_s[:n], model[f"{name}_residual"] * 1e9, color="C3", lw=0.6)
+        ax.set_ylabel(f"{name.split('_')[0]} residual [nm]")
+    axes[-1].set_xlabel("time [s]")
+    axes[0].set_title(title)
+    save_figure(figure, path)

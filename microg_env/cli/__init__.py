@@ -4,8 +4,8 @@ Every user error (a bad option or value, an unwritable output) prints one line t
 the option and exits with code 2, before any work is done; Ctrl-C, and SIGTERM (``kill``'s
 default) likewise, stops the command with its cleanup (no process of its own left behind), prints
 one line and exits with 130; output piped into a closed reader (``| head``) ends quietly. The
-commands live in :mod:`microg_env.cli.rig` (the rig and the paper) and
-:mod:`microg_env.cli.learning` (learned controllers); what they share in
+commands live in :mod:`microg_env.cli.rig` (the rig and the paper), :mod:`microg_env.cli.learning`
+(learned controllers) and :mod:`microg_env.cli.logs` (a rig's logs); what they share in
 :mod:`microg_env.cli.common`.
 """
 
@@ -27,17 +27,18 @@ __all__ = ["UsageError", "build_parser", "main"]
 
 #: Commands whose process pool's fork server starts before the commands' modules are imported,
 #: and what it imports besides the runner: it imports while this process does.
-POOLED_COMMANDS = {"reproduce": ("microg_env.paper.figures",)}
+POOLED_COMMANDS = {"reproduce": ("microg_env.paper.figures",), "identify": ("microg_env.experiments.identify",)}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from microg_env.cli import campaign, learning, rig  # after a pooled command's fork server started
+    from microg_env.cli import campaign, learning, logs, rig  # after a pooled command's fork server started
 
     parser = Parser(prog="microg", description="MuJoCo model of the QZS microgravity landing rig (Jia et al. 2024).")
     parser.add_argument("--version", action="version", version=f"microg {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     rig.add_commands(commands)
     learning.add_commands(commands)
+    logs.add_commands(commands)
     campaign.add_commands(commands)
     return parser
 

@@ -221,21 +221,24 @@ def add_rig_option(parser: argparse.ArgumentParser) -> None:
 
 
 def rig_overrides(args: argparse.Namespace) -> dict[str, object]:
-    """The overrides of ``--rig``'s file by dotted path (none without it), with the pad of
-    ``--pad``, ``--stiffness`` and ``--damping`` where one of them is given; a bad file is named
-    with the option."""
+    """The overrides of ``--rig``'s file by dotted path (none without it), its pad's K and D
+    replaced by ``--pad``'s, then by ``--stiffness`` and ``--damping``, where one is given; a bad
+    file is named with the option."""
     overrides: dict[str, object] = {}
     if getattr(args, "rig", None) is not None:
-        from microg_env.rigs import read_rig
+        from microg_env.rigs import read_rig_option
 
-        try:
-            overrides = read_rig(args.rig).overrides
-        except ValueError as error:
-            raise ValueError(f"--rig: {error}") from None
-    if hasattr(args, "pad") and (args.pad != "paper" or args.stiffness is not None or args.damping is not None):
-        pad = pad_from_options(args)
-        overrides |= {f"pad.{name}": getattr(pad, name) for name in ("stiffness_n_per_m", "damping_n_s_per_m")}
-    return overrides
+        overrides = read_rig_option(args.rig, "--rig").overrides
+    if not hasattr(args, "pad"):
+        return overrides
+    pad = {f"pad.{name}": value for name, value in (("stiffness_n_per_m", args.stiffness), ("damping_n_s_per_m",
+           args.damping)) if value is not None}  # fmt: skip
+    if args.pad != "paper":
+        named = pad_from_options(args)
+        overrides |= {f"pad.{name}": getattr(named, name) for name in ("stiffness_n_per_m", "damping_n_s_per_m")}
+    elif pad:
+        pad_from_options(args)  # the options' own checks, named
+    return overrides | pad
 
 
 def add_pad_options(parser: argparse.ArgumentParser) -> None:

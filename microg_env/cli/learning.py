@@ -77,6 +77,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     settings = TrainSettings(**given, timesteps=args.timesteps, command=command)
     resume, algo = None, settings.algo
     if args.resume is not None:
+        if args.rig is not None:  # its config.yml holds the rig it began on, values and all
+            raise ValueError("--resume: a run continues on the rig of its config.yml; leave --rig out")
         resume = Path(args.resume)
         if not (args.resume.strip() and resume.is_dir()):
             raise ValueError(f"--resume {args.resume!r}: no such run folder")

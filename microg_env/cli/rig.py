@@ -211,6 +211,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
         title = f"microg: {spec.scenario_schedule().name}, {args.controller}, seed {args.seed}"
         video = LandingVideo(path, title)
         render = {"render_mode": "rgb_array", "width": VIDEO_SIZE[0], "height": VIDEO_SIZE[1]}
+    recorder, log = None, None
+    if args.log is not None:
+        from microg_env.logs import LOG_SUFFIXES, check_parquet_support
+
+        if args.no_imperfections:
+            raise ValueError("--log: a rig log is of a rig with every imperfection on, as replay runs it; drop --ideal")
+        from microg_env.rollout.replay import LogRecorder
+
+        log = check_output_file(args.log, "--log", LOG_SUFFIXES)
+        check_parquet_support(log)
+        recorder = LogRecorder()
+    watchers = [watcher for watcher in (video, recorder) if watcher is not None]
+
+    def on_step(env, info) -> None:
+        for watcher in watchers:
+            watcher(env, info)
+
     steps = round(spec.scenario_schedule().duration_s / spec.control_period_s)
     bars = []  # opened at the first steps run: a run refused while it is built prints only its error
 
@@ -220,7 +237,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         bars[0].update(done)
 
     try:
-        result = run(spec, on_step=video, on_progress=progress, render=render)
+        result = run(spec, on_step=on_step if watchers else None, on_progress=progress, render=render)
     except ValueError as error:
         raise naming(error, run_options(args)) from None
     finally:
@@ -241,6 +258,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         video.write()
         if not args.json:
             print(f"wrote {video.path}")
+    if recorder is not None:
+        from microg_env.logs import write_log
+
+        write_log(recorder.log(), log)
+        if not args.json:
+            print(f"wrote {log}")
     return 0
 
 
@@ -409,6 +432,9 @@ def add_commands(commands) -> None:
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument(
         "--plot", metavar="FILE", help="write height, x, acceleration and pad force over time (.png, .pdf, .svg)"
+    )
+    run.add_argument(
+        "--log", metavar="FILE", help="write the run as a rig log: sensor readings and commands (.csv or .parquet)"
     )
     run.add_argument(
         "--video",

@@ -257,14 +257,10 @@ def _keys(key: str) -> list[str]:
 
 def _rig_overrides(rig: object, source: str | None) -> dict[str, Any]:
     """The parameters of the rig file ``rig`` (a path relative to the campaign file's folder)."""
-    from microg_env.rigs import read_rig
+    from microg_env.rigs import read_rig_option
 
     validate.instance("rig", rig, str)
-    path = Path(rig) if source is None else Path(source).parent / rig
-    try:
-        return read_rig(path).overrides
-    except ValueError as error:
-        raise ValueError(f"rig: {error}") from None
+    return read_rig_option(Path(rig) if source is None else Path(source).parent / rig, "rig").overrides
 
 
 def _check_named_once(base: Mapping[str, Any], sweep: Mapping[str, Any], draw: Mapping[str, Any]) -> None:

@@ -167,7 +167,8 @@ def policy_model(policy: MLPPolicy, metadata: Mapping[str, str] | None = None) -
 
 def deployment_metadata(folder: str | Path, card: Mapping[str, Any]) -> dict[str, str]:
     """How the policy of ``folder`` (with its ``card``) is deployed, each value a JSON text: its name and
-    contents' digest, its environment id and algorithm (where the card has them), the control period, its
+    contents' digest, its environment id and algorithm (where the card has them), the control period, the
+    rig it was trained on (its parameters unlike the paper's, ``microg train --rig``), its
     acting settings as deployed (hidden entries: :func:`~microg_env.controllers.registry.deployed_hidden`),
     the observation's entries and their scales (SI units per unit), and the exporting version."""
     env = card["env_kwargs"]
@@ -177,6 +178,7 @@ def deployment_metadata(folder: str | Path, card: Mapping[str, Any]) -> dict[str
         "policy_digest": folder_digest(folder),
         **{key: card[key] for key in ("env_id", "algo") if key in card},
         "control_period_s": float(env.get("control_period_s", TASK_DEFAULTS["control_period_s"])),
+        "trained_rig": dict(env.get("params") or {}),  # the rig's parameters unlike the paper's, by dotted path
         **dataclasses.asdict(acting),
         "observation": list(OBSERVATION_SCALES),
         "observation_scales": list(OBSERVATION_SCALES.values()),

@@ -61,7 +61,7 @@ from microg_env.learning.settings import (
     TrainSettings,
 )
 from microg_env.params import CONTROL_PERIOD_S, RigParams
-from microg_env.rigs import read_rig
+from microg_env.rigs import read_rig_option
 from microg_env.task import ACTING_KEYS, TaskSettings
 from microg_env.validate import fault, shown
 
@@ -178,10 +178,7 @@ def resolve(settings: TrainSettings) -> hp.Hyperparams:
     if settings.n_envs is not None:
         params = replace(params, n_envs=settings.n_envs)
     if settings.rig is not None:  # on the entry's own rig parameters, if any
-        try:
-            rig = read_rig(settings.rig).overrides
-        except ValueError as error:
-            raise ValueError(f"--rig: {error}") from None
+        rig = read_rig_option(settings.rig, "--rig").overrides
         entry = params.env_kwargs.get("params") or {}
         params = replace(params, env_kwargs=params.env_kwargs | {"params": dict(entry) | rig})
     check_entry(params)

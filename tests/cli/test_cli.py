@@ -167,7 +167,8 @@ def _cases():
         for value in values:
             args = [key[0], value] if len(key) == 1 else [key[0], key[1], value]
             yield args, "FILE" if len(key) == 1 else key[1]
-    commands = ("drop", "run", "view", "reproduce", "calibrate", "export-mjcf /tmp/never-written.xml", "train")
+    commands = ("drop", "run", "view", "reproduce", "calibrate", "export-mjcf /tmp/never-written.xml", "train",
+                "replay log.csv", "identify log.csv --out rig.toml")  # fmt: skip
     for command in (*commands, "compare"):
         yield [*command.split(), "--bogus"], "--bogus"
     yield ["--bogus"], "--bogus"
@@ -218,6 +219,18 @@ def _cases():
     yield ["export-onnx", "pid", "pid.onnx"], "POLICY"  # a baseline has no network
     yield ["export-onnx", "no-such-policy", "p.onnx"], "POLICY"
     yield ["export-onnx", "residual-ppo", "p.txt"], "FILE"
+    # Rig logs: a bad log, output or parameter is named before any replay.
+    yield ["run", "--log", "run.txt"], "--log"
+    yield ["run", "--log", "run.csv", "--ideal"], "--log"
+    yield ["train", "--resume", "{dir}", "--rig", "rig.toml"], "--resume"  # a run keeps the rig it began on
+    yield ["replay", "nowhere.csv"], "LOG"
+    yield ["replay", "{file}"], "LOG"
+    yield ["replay", "{log}", "--rig", "{bad_rig}"], "--rig"
+    yield ["replay", "{log}", "--window", "0"], "--window"
+    yield ["identify", "{file}", "--out", "rig.toml"], "LOG"
+    yield ["identify", "{log}", "--out", "rig.txt"], "--out"
+    yield ["identify", "{log}", "--out", "rig.toml", "--fit", "pad.mass"], "--fit"
+    yield ["identify", "{log}"], "--out"
     yield ["run", "--rig", "{dir}"], "--rig"
 
 
@@ -238,6 +251,8 @@ def _bad_input_folder(tmp_path: Path) -> Path:
     (folder / "no-network" / "policy.json").write_text('{"env_kwargs": {}}')
     (folder / "ppo.yml").write_text((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())
     (folder / "bad-rig.toml").write_text("lander.mass_kg = 3000.0\n")
+    header = "# microg rig log 1\n# descent_height_m = 0.01\n# loads = [{ mass_kg = 1.0 }]\n"
+    (folder / "log.csv").write_text(f"{header}time_s,command_m_s,ruler_m,encoder_m\n0,0,0,0.01\n0.001,0,0,0.01\n")
     return folder
 
 
@@ -249,6 +264,7 @@ PLACES = {
     "{no_network}": "no-network",
     "{hyperparams}": "ppo.yml",
     "{bad_rig}": "bad-rig.toml",
+    "{log}": "log.csv",
     "{dangling}": "dangling",
     "{dirlink}": "dir-link",
 }

@@ -77,6 +77,7 @@ def test_a_shipped_policys_onnx_file_says_how_it_is_deployed(name, tmp_path):
     assert read["residual_highpass_hz"] == env.get("residual_highpass_hz", 0.0)
     assert read["hidden_observations"] == list(deployed_hidden(env))
     assert read["control_period_s"] == 0.001
+    assert read["trained_rig"] == {}  # the shipped policies trained on the paper's rig
     assert dict(zip(read["observation"], read["observation_scales"], strict=True)) == OBSERVATION_SCALES
 
 
