@@ -231,8 +231,8 @@ def rig_overrides(args: argparse.Namespace) -> dict[str, object]:
         overrides = read_rig_option(args.rig, "--rig").overrides
     if not hasattr(args, "pad"):
         return overrides
-    pad = {f"pad.{name}": value for name, value in (("stiffness_n_per_m", args.stiffness), ("damping_n_s_per_m",
-           args.damping)) if value is not None}  # fmt: skip
+    given = {"stiffness_n_per_m": args.stiffness, "damping_n_s_per_m": args.damping}
+    pad = {f"pad.{name}": value for name, value in given.items() if value is not None}
     if args.pad != "paper":
         named = pad_from_options(args)
         overrides |= {f"pad.{name}": getattr(named, name) for name in ("stiffness_n_per_m", "damping_n_s_per_m")}
