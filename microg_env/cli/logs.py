@@ -8,8 +8,6 @@ import math
 import os
 from pathlib import Path
 
-import numpy as np
-
 from microg_env.cli.common import (
     add_physics_step_option,
     add_rig_option,
@@ -58,6 +56,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     from microg_env.experiments.identify import reading_noise
     from microg_env.files import check_output_file
     from microg_env.rollout.replay import replay
+    from microg_env.rollout.replay import rms as replay_rms
 
     (log,) = _logs([args.log])
     params, _ = _rig(args)
@@ -71,7 +70,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise _named(error, [args.log]) from None
     residuals, noise = result.residuals(), reading_noise(params)
-    rms = {name: float(np.sqrt(np.mean(r**2))) for name, r in residuals.items()}
+    rms = replay_rms(residuals)
     summary = {
         "log": args.log,
         "rows": log.rows,

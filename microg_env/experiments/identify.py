@@ -21,7 +21,7 @@ from mujoco import minimize
 
 from microg_env.logs import DEFAULT_WINDOW_S, RigLog
 from microg_env.params import PHYSICS_STEP_S, RANGES, RigParams, parameter_paths, with_overrides
-from microg_env.rollout.replay import Replay, replay
+from microg_env.rollout.replay import Replay, replay, rms
 from microg_env.workers import process_pool
 
 #: The parameters ``identify`` may fit, each with the scale it is fitted in (a unit of the solver).
@@ -190,14 +190,13 @@ def identify(
     replays = problem.replays(with_overrides(params, values))
     _check_left(replays, logs)
     noise = reading_noise(params)
-    rms = {
-        name: float(np.sqrt(np.mean(np.concatenate([run.residuals()[name] for run in replays]) ** 2))) for name in noise
-    }
+    sets = [run.residuals() for run in replays]  # each replay's, once
+    fit_rms = rms({name: np.concatenate([residuals[name] for residuals in sets]) for name in noise})
     return Identification(
         values,
         {name: float(h) for name, h in zip(fit, half, strict=True)},
         start,
-        rms,
+        fit_rms,
         noise,
         len(trace) - 1,
         tuple(log.source for log in logs),

@@ -120,7 +120,12 @@ class Replay:
         return {"ruler_m": ruler, "encoder_m": self.encoder_m - self.log.columns["encoder_m"][:n]}
 
     def rms(self) -> dict[str, float]:
-        return {name: float(np.sqrt(np.mean(r**2))) for name, r in self.residuals().items()}
+        return rms(self.residuals())
+
+
+def rms(residuals: dict[str, np.ndarray]) -> dict[str, float]:
+    """The root mean square of each channel's residuals."""
+    return {name: float(np.sqrt(np.mean(r**2))) for name, r in residuals.items()}
 
 
 def replay(
