@@ -24,6 +24,23 @@ def _probe_paths(monkeypatch):
         ("dither_probe", ["--amplitudes", "0.05,sac", "--seeds", "1", "--workers", "1"], "| sac | "),
         ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
         (
+            "drive_timing",
+            [
+                "--scheme",
+                "midpoint",
+                "--controllers",
+                "pid",
+                "--conditions",
+                "1",
+                "--duration",
+                "0.3",
+                "--steps-us",
+                "100",
+                "50",
+            ],
+            "pid                    c1  ",
+        ),
+        (
             "finetune_probe",
             ["--timesteps", "64", "--episodes", "1", "--set", "sensor_set=mixed"],
             "| fine-tuned 64 steps, seed 0 | ",
@@ -405,3 +422,30 @@ def test_the_peak_reward_charges_the_first_contacts_peak_as_reward_by_phase_read
             plain, peak_m, _ = phases.phase_returns(env, phases.zero_residual, seed)
             assert peak_m > 2e-7  # a contact whose peak the charge can be told from
             assert returns[rig, number] == pytest.approx(plain.sum() - 20.0 * peak_m * 1e6, abs=1e-3)
+
+
+def test_the_drive_timing_probes_shipped_scheme_is_the_environment():
+    """research/drive_timing.py steps one physics step at a time; its ``shipped`` scheme is the
+    environment as it runs (x equal to rounding: one step at a time is not MuJoCo's ``nstep`` loop
+    bit for bit), and each other scheme changes x by far more."""
+    import argparse
+
+    from microg_env.controllers import make_controller
+    from microg_env.envs.landing import MicroGravityLandingEnv
+    from microg_env.rollout.episode import run_with_metrics
+
+    probe = importlib.import_module("drive_timing")
+    env = MicroGravityLandingEnv(condition=1)
+    metrics = run_with_metrics(env, make_controller("feedforward", env.settings.control_period_s), seed=0,
+                               duration_s=1.0)[2]  # fmt: skip
+    args = argparse.Namespace(overrides={}, duration=1.0, own_friction=False, integrator="implicitfast")
+    free_falls = {}
+    for scheme in probe.SCHEMES:
+        args.scheme = scheme
+        free_falls[scheme] = probe.run("feedforward", 1, 100.0, args)[0]
+    assert free_falls["shipped"] == pytest.approx(metrics.flexible_unit_excursion_free_fall_m * 1e6, rel=1e-9)
+    assert all(
+        abs(value / free_falls["shipped"] - 1) > 1e-3 for scheme, value in free_falls.items() if scheme != "shipped"
+    )
+    args.scheme, args.own_friction = "midpoint", True
+    assert probe.run("feedforward", 1, 100.0, args)[0] != free_falls["midpoint"]
