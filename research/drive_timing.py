@@ -43,8 +43,8 @@ from microg_env.params import RigParams, with_overrides
 from microg_env.rollout.episode import run_with_metrics
 from microg_env.sim.physics import ModelPhysics
 
-SCHEMES = ("shipped", "late-current", "start-reference", "midpoint")
-INTEGRATORS = {"implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST, "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+SCHEMES = ("shipped", "late-current", "start-reference", "midpoint", "midpoint-speed")
+INTEGRATORS = {"implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST, "euler": mujoco.mjtIntegrator.mjINT_EULER, "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
                "rk4": mujoco.mjtIntegrator.mjINT_RK4}  # fmt: skip
 #: The dcmotor's PI gains in ``actuator_gainprm``: kp (position) and kd (speed); kp / kd = 1 / Ti.
 KP_INDEX, KD_INDEX = 4, 6
@@ -109,6 +109,8 @@ class TimedPhysics(ModelPhysics):
             if self.scheme == "start-reference":
                 # kp (r_end - theta) + kd (w_ref' - w) = kp (r_start - theta) + kd (w_ref - w)
                 data.ctrl[1] = speed_ref * (1.0 - h * inverse_ti)
+            elif self.scheme == "midpoint-speed":  # the middle's angle and reference, the start's speed
+                data.ctrl[1] = speed_ref - 0.5 * h * inverse_ti * (speed_ref + speed)
             elif self.scheme == "midpoint":
                 middle = speed + h * acceleration  # the speed over the step, as the next step has it
                 data.ctrl[1] = speed_ref - 0.5 * h * inverse_ti * (speed_ref + middle) - h * acceleration
