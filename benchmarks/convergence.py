@@ -10,10 +10,12 @@ The study behind the default PHYSICS_STEP_S and what docs/model.md ("Physics ste
 100 us converges for the PID's excursions, every compensation error and the landing, not for the
 sub-micrometre excursions of the model-based and learned controllers nor for the 5 ms dx, so the
 verdict line says "none" for every controller; 100 us is a trade-off, not this criterion's pass.
-``--integrator``, ``--overrides`` and ``--off`` give the page's ablations.
+``--integrator``, ``--overrides`` and ``--off`` give the page's ablations; ``--drive-scheme midpoint``
+runs the drive whose speed loop reads the step's middle (docs/model.md, "Physics step").
 
 Usage: ``python benchmarks/convergence.py [--steps-us 200 100 50 25] [--duration S]
-[--controllers pid,feedforward,residual-ppo] [--integrator rk4] [--overrides JSON] [--off cogging]``.
+[--controllers pid,feedforward,residual-ppo] [--integrator rk4] [--overrides JSON] [--off cogging]
+[--drive-scheme midpoint]``.
 Prints one table per controller and condition (and the excursions' values at each step) and, last,
 the steps that converge on all three conditions, per controller.
 """
@@ -32,12 +34,14 @@ from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.params import RigParams, with_overrides
 from microg_env.rollout.episode import run_with_metrics
+from microg_env.sim.model import DRIVE_SCHEMES
 
 RELATIVE_TOLERANCE = 0.01
 COMPENSATION_TOLERANCE_PP = 0.02
 
 
-#: MuJoCo's integrators by the name ``--integrator`` takes (the model's own: implicitfast).
+#: MuJoCo's integrators by the name ``--integrator`` takes (the model's own: implicitfast, euler
+#: for the midpoint drive).
 INTEGRATORS = {
     "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
     "euler": mujoco.mjtIntegrator.mjINT_EULER,
@@ -49,13 +53,19 @@ SHOWN_UM = ("flexible_unit_excursion_free_fall_m", "flexible_unit_excursion_coll
 
 def run(controller: str, condition: int, physics_step_s: float, options: argparse.Namespace) -> RunMetrics:
     """One 30 s condition (or ``--duration``) on the rig of ``options`` (its overrides, the
-    imperfections it switches off, the integrator); a model-based controller knows the overrides."""
+    imperfections it switches off, the integrator, the drive scheme); a model-based controller
+    knows the overrides."""
     params = with_overrides(RigParams(), options.overrides)
     imperfections = dict.fromkeys(options.off, False)
     env = MicroGravityLandingEnv(
-        condition=condition, physics_step_s=physics_step_s, params=params, imperfections=imperfections
+        condition=condition,
+        physics_step_s=physics_step_s,
+        params=params,
+        imperfections=imperfections,
+        drive_scheme=options.drive_scheme,
     )
-    env.unwrapped.rig.model.opt.integrator = INTEGRATORS[options.integrator]
+    if options.integrator is not None:
+        env.unwrapped.rig.model.opt.integrator = INTEGRATORS[options.integrator]
     controller = make_controller(controller, env.settings.control_period_s, params)
     return run_with_metrics(env, controller, seed=0, duration_s=options.duration)[2]
 
@@ -80,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps-us", type=float, nargs="+", default=[200.0, 100.0, 50.0, 25.0])
     parser.add_argument("--duration", type=float, default=None, help="simulated time per run (default: 30 s)")
     parser.add_argument("--controllers", default="pid,feedforward,residual-ppo")
-    parser.add_argument("--integrator", choices=tuple(INTEGRATORS), default="implicitfast")
+    parser.add_argument("--integrator", choices=tuple(INTEGRATORS), default=None, help="default: the scheme's")
+    parser.add_argument("--drive-scheme", choices=DRIVE_SCHEMES, default="mujoco")
     parser.add_argument(
         "--overrides", type=json.loads, default={}, help="rig parameters, e.g. '{\"servo.cogging_torque_n_m\": 0}'"
     )

@@ -38,7 +38,7 @@ from microg_env.params import (
 )
 from microg_env.scenarios import Scenario, ScenarioSampler
 from microg_env.scenarios import condition as paper_condition
-from microg_env.sim.model import check_physics_step
+from microg_env.sim.model import DRIVE_SCHEMES, check_physics_step
 from microg_env.validate import FieldError
 
 
@@ -122,6 +122,7 @@ class TaskSettings(ActingSettings):
     scenario_sampler: ScenarioSampler | str | Mapping | None = None
     control_period_s: float = CONTROL_PERIOD_S
     physics_step_s: float = PHYSICS_STEP_S
+    drive_scheme: str = "mujoco"
     imperfections: Imperfections | Mapping | None = None
     domain_randomization: DomainRandomization | Mapping | bool | str | None = None
     sensor_set: str = "extended"
@@ -157,6 +158,7 @@ class TaskSettings(ActingSettings):
         check_parameters_used(self.params, self.imperfections, self.sensor_set, missing, "params")
         put("physics_step_s", check_physics_step(self.physics_step_s))
         put("control_period_s", check_control_period(self.control_period_s, self.physics_step_s))
+        validate.choice("drive_scheme", self.drive_scheme, DRIVE_SCHEMES)
         super().__post_init__()  # how a policy acts
         put("reward_scale_m", validate.between("reward_scale_m", self.reward_scale_m, 1e-12, 1e-3, "m"))
         put("reward_descent_weight", validate.between("reward_descent_weight", self.reward_descent_weight, 0.0, 1.0))

@@ -13,7 +13,8 @@ on the single environment, every other element as shipped:
   like the encoder angle it is compared with (the speed input less h/Ti of itself).
 - ``midpoint``: ``late-current``, and the speed loop reads the reference, angle and speed at the
   middle of the step the current is filtered over (a per-step prediction from the last step's
-  acceleration).
+  acceleration); with ``--integrator euler`` this is the environment's ``drive_scheme="midpoint"``.
+- ``midpoint-speed``: ``midpoint`` without the acceleration term.
 
 ``--overrides`` switches elements off for an ablation (a controller knows them, as in
 ``benchmarks/convergence.py``); ``--own-friction`` takes the motor's and the guide's LuGre laws out
@@ -24,7 +25,7 @@ step and each value's change from the coarsest step to the finest.
 Run: ``python research/drive_timing.py [--scheme start-reference] [--controllers adaptive-dither]
 [--conditions 1,2,3] [--steps-us 100 25] [--overrides '{"servo.bristle_stiffness_n_m_per_rad": 0}']
 [--own-friction] [--integrator implicit]``.
-The findings are in docs/research-log.md ("The physics step's error").
+The findings are in docs/research-log.md ("0.21.0: the physics step's error ...").
 """
 
 from __future__ import annotations
@@ -44,8 +45,12 @@ from microg_env.rollout.episode import run_with_metrics
 from microg_env.sim.physics import ModelPhysics
 
 SCHEMES = ("shipped", "late-current", "start-reference", "midpoint", "midpoint-speed")
-INTEGRATORS = {"implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST, "euler": mujoco.mjtIntegrator.mjINT_EULER, "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
-               "rk4": mujoco.mjtIntegrator.mjINT_RK4}  # fmt: skip
+INTEGRATORS = {
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+    "euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+}
 #: The dcmotor's PI gains in ``actuator_gainprm``: kp (position) and kd (speed); kp / kd = 1 / Ti.
 KP_INDEX, KD_INDEX = 4, 6
 #: A dcmotor's LuGre law: bristle stiffness and damping in ``actuator_dynprm``, Coulomb and static
@@ -74,7 +79,7 @@ class LuGre:
 
     def force(self, data: mujoco.MjData, h: float) -> float:
         """The generalised force over the coming step; remembers the step's middle speed."""
-        speed = data.actuator_velocity[self.id]
+        speed = data.qvel[self.dof] * self.gear  # now (actuator_velocity is the last step's)
         acceleration = 0.0 if self.previous is None else (speed - self.previous) / h
         self.previous, self.middle = speed, speed + h * acceleration
         start = speed + 0.5 * h * acceleration
@@ -101,10 +106,11 @@ class TimedPhysics(ModelPhysics):
         servo = model.actuator("servo").id
         h = model.opt.timestep
         inverse_ti = model.actuator_gainprm[servo, KP_INDEX] / model.actuator_gainprm[servo, KD_INDEX]
+        dof, gear = model.jnt_dofadr[model.actuator_trnid[servo, 0]], model.actuator_gear[servo, 0]
         speed_ref = data.ctrl[1]  # the period's commanded speed, rad/s (the drive kernel set it)
         previous = getattr(self, "_previous_speed", None)
         for _ in range(nstep):
-            speed = data.actuator_velocity[servo]
+            speed = data.qvel[dof] * gear  # now (actuator_velocity is the last step's)
             acceleration = 0.0 if previous is None else (speed - previous) / h
             if self.scheme == "start-reference":
                 # kp (r_end - theta) + kd (w_ref' - w) = kp (r_start - theta) + kd (w_ref - w)

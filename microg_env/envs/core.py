@@ -163,6 +163,7 @@ class LandingCore:
             xml_file=self.settings.xml_file,
             physics_step_s=self.settings.physics_step_s,
             ideal_drive=not self.settings.imperfections.servo_lag,
+            drive_scheme=self.settings.drive_scheme,
         )
         for each in nominal[1:]:
             self.rig.check_episode_params(each)  # one compiled model for every rig's schedule
@@ -215,6 +216,7 @@ class LandingCore:
         self.residual_setpoint_m = np.zeros(n)
         self.residual_stage_m = np.zeros(n) if self.settings.residual_highpass_order == 2 else None
         self.position_ref = np.zeros(n)  # the drive's interpolated position reference, motor rad
+        self.motor_speed = np.full(n, np.nan)  # rad/s at the last physics step (midpoint drive); NaN: none yet
         self.drift_n_per_s = np.zeros(n)
         self.x_stiffness = np.zeros(n)
         self.trim_height_m = np.zeros(n)
@@ -340,6 +342,7 @@ class LandingCore:
             for name, index, value in rig.start_state(episode.params, episode.height_m):
                 getattr(physics, name)[i, index] = value
         self.position_ref[ids] = 0.0 if rig.ideal_drive else physics.ctrl[ids, 0]
+        self.motor_speed[ids] = np.nan
         self.steps[ids] = 0
         self.next_load[ids] = 0
         self.placed[ids] = False
@@ -467,10 +470,13 @@ class LandingCore:
             self._observe_args(ids, codes, self._height[:1]), tally_args, sums, state_args, self._missing, states,
             rewards,
         )  # fmt: skip
+        speed = (self.rig.midpoint_drive, self._speed_args(ids))
         model, data = self.physics.model._address, self.physics.data._address
         done = 0
         while done < count:
-            ran, why = period.pid_periods(count - done, model, data, self.settings.frame_skip, *args, row + done)
+            ran, why = period.pid_periods(
+                count - done, model, data, self.settings.frame_skip, *args, row + done, *speed
+            )
             done += ran
             if why == period.NON_FINITE:
                 raise ValueError(f"action must be finite, got {float(actions[0])!r}")
@@ -495,8 +501,30 @@ class LandingCore:
         taking ``command_m_s`` (empty: the actions, as speeds) after the delay, if on; place the test
         weights that came due, and read the sensors; returns the rigs' termination codes."""
         period.drive(*self._drive_args(ids, positions, actions, command_m_s))
-        self.physics.step(ids, self.settings.frame_skip)
+        self._step_physics(ids)
         return self._observe(ids, rngs)
+
+    def _step_physics(self, ids: np.ndarray) -> None:
+        """The control period's physics steps of rigs ``ids``; with the midpoint drive, the drive's
+        speed input set before each (:func:`~microg_env.envs.period.speed_inputs`)."""
+        physics, count = self.physics, self.settings.frame_skip
+        if not self.rig.midpoint_drive:
+            physics.step(ids, count)
+        elif isinstance(physics, ModelPhysics) and mj_step is not None:
+            period.midpoint_steps(physics.model._address, physics.data._address, count, self._speed_args(ids))
+        else:
+            args = self._speed_args(ids)
+            for _ in range(count):
+                period.speed_inputs(*args)
+                physics.step(ids, 1)
+
+    def _speed_args(self, ids: np.ndarray) -> tuple:
+        """:func:`~microg_env.envs.period.speed_inputs`' arguments for rigs ``ids``."""
+        physics, rig = self.physics, self.rig
+        return (
+            ids, physics.ctrl, physics.qvel, rig.motor_dof, rig.gear, self.command, self.motor_speed,
+            physics.field("actuator_gainprm"), rig.servo, self.settings.physics_step_s,
+        )  # fmt: skip
 
     def _drive_args(
         self, ids: np.ndarray, positions: np.ndarray, actions: np.ndarray, command_m_s: np.ndarray

@@ -13,7 +13,9 @@ import numpy as np
 
 from microg_env.compiled import jit, mj_step, ufunc
 from microg_env.controllers.pid import pid_actions
-from microg_env.sim.model import slew_rate
+from microg_env.sim.model import DCMOTOR_FIELDS, slew_rate
+
+KP, KD = DCMOTOR_FIELDS["kp"], DCMOTOR_FIELDS["kd"]
 
 #: Why :func:`pid_periods` returned: it ran every period asked for; the episode ended; after a
 #: period's physics the sensors cannot be read in the loop (a test weight came due, or the noise
@@ -262,18 +264,53 @@ def finish_period(tally_args, sums, state_args, states, rewards, row):
 
 
 @jit
+def speed_inputs(ids, ctrl, qvel, motor_dof, gear, command, previous_speed, gainprm, servo, step_s):
+    """The drive's speed input for the coming physics step of rigs ``ids`` (``drive_scheme``
+    ``"midpoint"``): the one that makes the dcmotor's speed loop, kp (r - theta) + kd (w_r - w),
+    read the reference r, the angle theta and the speed w at the middle of the step whose current
+    it filters, though MuJoCo gives it the reference at the step's end and the angle and speed at
+    its start.
+
+    With h the step, w the motor's speed now (``qvel`` of ``motor_dof`` times ``gear``), a the
+    acceleration over the last step (from ``previous_speed``; 0 after a reset, NaN there) and
+    w_r the period's commanded speed (``command``, m/s, times ``gear``): the middle's speed is
+    w + h a (the next step's, on MuJoCo's semi-implicit steps), its angle theta + h/2 (w + h a) and
+    its reference r_end - h/2 w_r, so the input is w_r - h / (2 Ti) (w_r + w + h a) - h a with
+    1 / Ti = kp / kd of each rig (``gainprm``)."""
+    for j in range(ids.size):
+        i = ids[j]
+        speed = qvel[i, motor_dof] * gear
+        previous = previous_speed[i]
+        acceleration = 0.0 if np.isnan(previous) else (speed - previous) / step_s
+        previous_speed[i] = speed
+        reference = command[i] * gear
+        middle = speed + step_s * acceleration
+        inverse_ti = gainprm[i, servo, KP] / gainprm[i, servo, KD]
+        ctrl[i, 1] = reference - 0.5 * step_s * inverse_ti * (reference + middle) - step_s * acceleration
+
+
+@jit
+def midpoint_steps(model, data, count, speed_args):
+    """``count`` physics steps of one rig (its ``MjModel`` and ``MjData`` at addresses ``model``
+    and ``data``), the drive's speed input set before each (:func:`speed_inputs`, ``speed_args``)."""
+    for _ in range(count):
+        speed_inputs(*speed_args)
+        mj_step(model, data)
+
+
+@jit
 def pid_periods(
     count, model, data, frame_skip, ids, actions, observation, pid_args, drive_args, observe_args, tally_args, sums,
-    state_args, missing, states, rewards, row,
+    state_args, missing, states, rewards, row, midpoint, speed_args,
 ):  # fmt: skip
     """Up to ``count`` control periods of rig ``ids[0]`` (its ``MjModel`` and ``MjData`` at
     addresses ``model`` and ``data``) driven by a PID, each what the environment's step does with
     the PID's action: :func:`~microg_env.controllers.pid.pid_actions` of the ``observation``
     (``pid_args`` after the observation and rig) into ``actions[0]``, clipped; :func:`drive`;
-    ``frame_skip`` physics steps; :func:`observe` (the sensors ``missing`` read 0) and
-    :func:`finish_period` into rows ``row``, ``row + 1``, ... The argument tuples are those of each
-    kernel, ``ids``, ``actions`` and ``observation`` among them. Returns the periods finished and
-    why it stopped (:data:`RAN` ...)."""
+    ``frame_skip`` physics steps (with ``midpoint``, :func:`midpoint_steps` of ``speed_args``);
+    :func:`observe` (the sensors ``missing`` read 0) and :func:`finish_period` into rows ``row``,
+    ``row + 1``, ... The argument tuples are those of each kernel, ``ids``, ``actions`` and
+    ``observation`` among them. Returns the periods finished and why it stopped (:data:`RAN` ...)."""
     out = np.empty(1, dtype=np.float32)  # the PID's action, float32 as the action space's
     for n in range(count):
         pid_actions(observation, ids, *pid_args, out)
@@ -283,8 +320,11 @@ def pid_periods(
             return n, NON_FINITE
         actions[0] = min(max(value, -1.0), 1.0)
         drive(*drive_args)
-        for _ in range(frame_skip):
-            mj_step(model, data)
+        if midpoint:
+            midpoint_steps(model, data, frame_skip, speed_args)
+        else:
+            for _ in range(frame_skip):
+                mj_step(model, data)
         result = observe(*observe_args)
         if result < 0:
             return n, OBSERVE_HERE

@@ -44,6 +44,17 @@ MOTOR_JOINT = "motor"
 _MOTOR_BODY_MASS_KG = 1e-6
 #: Index of the dcmotor's setpoint slew rate (rad/s) in ``actuator_dynprm``.
 SLEW_PARAMETER = 7
+#: How the drive meets the mechanics in each physics step (``TaskSettings.drive_scheme``).
+#: ``"mujoco"``: MuJoCo's own ``dcmotor`` stepping: the current at the step's end drives the step
+#: (``actearly``), the speed loop compares the reference at the step's end with the angle at its
+#: start and reads the speed of the step before, under ``implicitfast``; sub-micrometre excursions
+#: are first order in the step (docs/model.md, "Physics step"). ``"midpoint"``: the current at the
+#: step's start drives it, and the speed loop reads the reference, angle and speed at the middle of
+#: the step its current is filtered over (:func:`microg_env.envs.period.speed_inputs`, every physics
+#: step), under MuJoCo's ``euler`` integrator, whose implicit part is the joints' damping only
+#: (``implicitfast`` also takes the friction's bristle damping as acting in sliding, where it does
+#: not). The ideal drive is the same under both.
+DRIVE_SCHEMES = ("mujoco", "midpoint")
 #: Slew rate standing for a zero speed reference (a zero rate would switch the slew limiter off).
 MIN_SLEW_RAD_S = 1e-12
 
@@ -203,6 +214,7 @@ class Rig:
         loads_kg: tuple[float, ...],
         pad_contacts: int,
         ideal_drive: bool,
+        midpoint_drive: bool = False,
     ) -> None:
         self.model = model
         self.params = params
@@ -219,6 +231,9 @@ class Rig:
         #: The motor's coordinate (m of support travel) in ``qpos``, which the encoder reads: the
         #: screw's on a rigid transmission.
         self.motor_qpos = self.screw_qpos if motor < 0 else int(model.jnt_qposadr[motor])
+        self.motor_dof = self.screw_dof if motor < 0 else int(model.jnt_dofadr[motor])
+        #: Whether the speed loop's inputs are set every physics step (``drive_scheme="midpoint"``).
+        self.midpoint_drive = midpoint_drive
         self.lander_body = model.body("lander").id
         self.load_bodies = np.array([model.body(f"load_{i}").id for i in range(len(loads_kg))], dtype=int)
         self._load_geoms = np.array([model.geom(f"load_{i}").id for i in range(len(loads_kg))], dtype=int)
@@ -520,7 +535,7 @@ def _apply_flexible_unit(spec: mujoco.MjSpec, params: RigParams) -> None:
     tendon.springlength = (free_length, free_length)
 
 
-def _apply_servo(spec: mujoco.MjSpec, params: RigParams, ideal_drive: bool) -> None:
+def _apply_servo(spec: mujoco.MjSpec, params: RigParams, ideal_drive: bool, drive_scheme: str = "mujoco") -> None:
     """Screw stage and drive: gear, reflected inertia, friction, limits and the PI speed loop.
 
     The ideal drive (``ideal_drive``) is a speed source: a velocity actuator so stiff that the
@@ -554,6 +569,8 @@ def _apply_servo(spec: mujoco.MjSpec, params: RigParams, ideal_drive: bool) -> N
         ),
         ctrlspec=mujoco.mjtCtrlInput.mjINPUT_POS | mujoco.mjtCtrlInput.mjINPUT_VEL,
     )
+    if drive_scheme == "midpoint":  # DRIVE_SCHEMES; the current at the step's start is set on the compiled model
+        spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
     if math.isfinite(screw.transmission_stiffness_n_per_m):
         _add_transmission(spec, params)
 
@@ -632,11 +649,14 @@ def build_spec(
     xml_file: str | Path | None = None,
     physics_step_s: float = PHYSICS_STEP_S,
     ideal_drive: bool = False,
+    drive_scheme: str = "mujoco",
 ) -> tuple[mujoco.MjSpec, int]:
     """The rig's MjSpec with every value of ``params`` applied, and its foot-pad contact count.
 
     ``xml_file`` replaces the packaged ``scene.xml`` template; it must name the same elements.
+    ``drive_scheme`` is one of :data:`DRIVE_SCHEMES`.
     """
+    validate.choice("drive_scheme", drive_scheme, DRIVE_SCHEMES)
     loads_kg = tuple(loads_kg)
     validate_loads(loads_kg, params.lander.mass_kg)
     physics_step_s = check_physics_step(physics_step_s)
@@ -645,7 +665,7 @@ def build_spec(
     _apply_geometry_and_masses(spec, params, physics_step_s)
     _add_loads(spec, loads_kg)
     _apply_flexible_unit(spec, params)
-    _apply_servo(spec, params, ideal_drive)
+    _apply_servo(spec, params, ideal_drive, drive_scheme)
     n_contacts = _apply_pad_contact(spec, params, params.lander.mass_kg + sum(loads_kg), "screw")
     home = spec.key("home")  # its coordinates, filled in by the contact count's compile
     motor_m = float(home.qpos[0]) + transmission_deflection_m(params)
@@ -697,11 +717,17 @@ def build_rig(
     xml_file: str | Path | None = None,
     physics_step_s: float = PHYSICS_STEP_S,
     ideal_drive: bool = False,
+    drive_scheme: str = "mujoco",
 ) -> Rig:
-    """Compile the rig for ``params`` (default: the paper's rig) with test weights ``loads_kg``."""
+    """Compile the rig for ``params`` (default: the paper's rig) with test weights ``loads_kg``,
+    its drive stepped as ``drive_scheme`` (:data:`DRIVE_SCHEMES`) says."""
     params = RigParams() if params is None else params
-    spec, n_contacts = build_spec(params, loads_kg, xml_file, physics_step_s, ideal_drive)
-    return Rig(spec.compile(), params, tuple(float(m) for m in loads_kg), n_contacts, ideal_drive)
+    spec, n_contacts = build_spec(params, loads_kg, xml_file, physics_step_s, ideal_drive, drive_scheme)
+    model = spec.compile()
+    midpoint = drive_scheme == "midpoint" and not ideal_drive
+    if midpoint:  # MuJoCo's compiler refuses actearly off for a dcmotor; the compiled model takes it
+        model.actuator_actearly[model.actuator("servo").id] = False
+    return Rig(model, params, tuple(float(m) for m in loads_kg), n_contacts, ideal_drive, midpoint)
 
 
 @dataclass(frozen=True)

@@ -585,6 +585,7 @@ def test_bad_actions_raise(action):
         ({"control_period_s": 1.5e-4}, "whole number of physics steps"),
         ({"physics_step_s": 1e-9}, "physics_step_s"),
         ({"physics_step_s": 2e-3}, "physics_step_s"),
+        ({"drive_scheme": "rk4"}, "drive_scheme"),
         ({"reward_scale_m": -1.0}, "reward_scale_m"),
         ({"reward_scale_m": 1e-200}, "reward_scale_m"),
         ({"decision_period": 0}, "decision_period"),

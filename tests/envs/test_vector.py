@@ -60,6 +60,7 @@ def _rollout(env, actions, seed):
     [
         {"condition": 3, "domain_randomization": True},  # every imperfection, randomised plants
         {"condition": 1, "domain_randomization": DomainRandomization.full()},  # and randomised drives
+        {"condition": 1, "domain_randomization": DomainRandomization.full(), "drive_scheme": "midpoint"},
         {"condition": 2, "action_mode": "residual", "base_controller": "feedforward", "decision_period": 3},
         {  # past the descent window's start at 0.2 s: the descent term scored per rig
             "condition": 1,
@@ -75,6 +76,7 @@ def _rollout(env, actions, seed):
     ids=[
         "speed-randomised",
         "speed-randomised-drive",
+        "speed-randomised-drive-midpoint",  # the batch stepped one physics step a call, the env in a kernel
         "residual-feedforward",
         "residual-descent-reward",
         "residual-gated",

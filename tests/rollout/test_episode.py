@@ -183,6 +183,18 @@ def test_kernels_find_mujocos_step_beside_the_bindings():
     assert LandingCore(1).can_run_pid(make_controller("pid", 1e-3))
 
 
+def test_the_compiled_pid_loop_steps_the_midpoint_drive_as_the_environment_does():
+    """With ``drive_scheme="midpoint"`` the PID's compiled loop sets the drive's speed input every
+    physics step as the environment's own steps do, bit for bit; the scheme changes x."""
+    settings = {"condition": 3, "drive_scheme": "midpoint"}
+    pid = make_controller("pid", 1e-3)
+    compiled = run_episode(MicroGravityLandingEnv(**settings), pid, 5, duration_s=0.3)
+    stepped = run_episode(MicroGravityLandingEnv(**settings), pid, 5, duration_s=0.3, on_step=lambda env, info: None)
+    np.testing.assert_array_equal(compiled.x_m, stepped.x_m)
+    mujocos = run_episode(MicroGravityLandingEnv(condition=3), pid, 5, duration_s=0.3)
+    assert np.abs(compiled.x_m - mujocos.x_m).max() > 1e-9
+
+
 def test_every_runner_shows_a_controller_what_the_environment_shows():
     """With ``hidden_observations`` the PID reads 0 for x whichever loop runs it: the compiled loop
     (which reads the whole observation, so it steps aside), the environment's own steps and a batch

@@ -19,6 +19,7 @@ from microg_env.params import (
 )
 from microg_env.sim.follower import PerfectFollower
 from microg_env.sim.model import (
+    DRIVE_SCHEMES,
     EPISODE_PARAMETERS,
     TEMPLATE_LOADS,
     build_rig,
@@ -26,6 +27,7 @@ from microg_env.sim.model import (
     mjcf_dir,
     speed_loop_gains,
 )
+from microg_env.validate import FieldError
 
 MJCF_FILES = sorted(Path(mjcf_dir()).glob("*.xml"))
 
@@ -342,3 +344,40 @@ def test_overrides_must_be_a_mapping():
 
     with pytest.raises(ValueError, match="overrides"):
         with_overrides(RigParams(), [("pad.stiffness_n_per_m", 1.0)])
+
+
+def test_the_midpoint_drive_converges_where_mujocos_stepping_does_not():
+    """``drive_scheme="midpoint"`` (docs/model.md, "Physics step"): the feed-forward's free-fall x,
+    a cancellation residual that amplifies the drive's step error about eight times, moves by
+    under 0.5 % from 100 to 25 µs (measured: 0.03 % over 30 s); under MuJoCo's own stepping of the
+    dcmotor it moves by 10 % (measured 11.5 %). Condition 1 to its largest free-fall x, near 3 s."""
+    from microg_env.controllers import make_controller
+    from microg_env.envs.landing import MicroGravityLandingEnv
+    from microg_env.rollout.episode import run_with_metrics
+
+    def free_fall_x(scheme: str, step_s: float) -> float:
+        env = MicroGravityLandingEnv(condition=1, physics_step_s=step_s, drive_scheme=scheme)
+        controller = make_controller("feedforward", env.settings.control_period_s)
+        return run_with_metrics(env, controller, seed=0, duration_s=3.5)[2].flexible_unit_excursion_free_fall_m
+
+    change = {scheme: free_fall_x(scheme, 1e-4) / free_fall_x(scheme, 2.5e-5) - 1.0 for scheme in DRIVE_SCHEMES}
+    assert abs(change["midpoint"]) < 0.005, change
+    assert abs(change["mujoco"]) > 0.10, change
+
+
+def test_the_midpoint_drive_is_built_for_the_drive_alone():
+    """The midpoint drive: MuJoCo's euler integrator and the current at the step's start (actearly
+    off) on the servo; the ideal drive, a stiff velocity actuator, keeps implicitfast."""
+    midpoint = build_rig(drive_scheme="midpoint")
+    assert midpoint.midpoint_drive
+    assert midpoint.model.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
+    assert not midpoint.model.actuator_actearly[midpoint.servo]
+    shipped = build_rig()
+    assert not shipped.midpoint_drive
+    assert shipped.model.actuator_actearly[shipped.servo]
+    assert shipped.model.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    ideal = build_rig(ideal_drive=True, drive_scheme="midpoint")
+    assert not ideal.midpoint_drive
+    assert ideal.model.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    with pytest.raises(FieldError, match="drive_scheme must be one of 'mujoco', 'midpoint', got 'rk4'"):
+        build_rig(drive_scheme="rk4")
