@@ -1,7 +1,7 @@
 """What the midpoint drive costs: time per simulated second under each ``drive_scheme``.
 
 The midpoint drive sets the drive's speed input before every physics step (docs/model.md,
-"Physics step"): a single environment does it in its compiled loop, a vector environment steps its
+"Drive scheme"): a single environment does it in its compiled loop, a vector environment steps its
 ``mujoco.batch`` one physics step a call. Both schemes run the same episodes (condition 2, every
 imperfection on, 100 µs step), timed in alternation ``--repeats`` times; the table gives each
 median and the median of the paired ratios midpoint / mujoco:

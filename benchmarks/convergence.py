@@ -11,7 +11,7 @@ The study behind the default PHYSICS_STEP_S and what docs/model.md ("Physics ste
 sub-micrometre excursions of the model-based and learned controllers nor for the 5 ms dx, so the
 verdict line says "none" for every controller; 100 us is a trade-off, not this criterion's pass.
 ``--integrator``, ``--overrides`` and ``--off`` give the page's ablations; ``--drive-scheme midpoint``
-runs the drive whose speed loop reads the step's middle (docs/model.md, "Physics step").
+runs the drive whose speed loop reads the step's middle (docs/model.md, "Drive scheme").
 
 Usage: ``python benchmarks/convergence.py [--steps-us 200 100 50 25] [--duration S]
 [--controllers pid,feedforward,residual-ppo] [--integrator rk4] [--overrides JSON] [--off cogging]

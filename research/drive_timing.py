@@ -13,7 +13,8 @@ on the single environment, every other element as shipped:
   like the encoder angle it is compared with (the speed input less h/Ti of itself).
 - ``midpoint``: ``late-current``, and the speed loop reads the reference, angle and speed at the
   middle of the step the current is filtered over (a per-step prediction from the last step's
-  acceleration); with ``--integrator euler`` this is the environment's ``drive_scheme="midpoint"``.
+  acceleration); with ``--integrator euler`` this is the environment's ``drive_scheme="midpoint"``
+  but for the guide friction's ``actearly``, which this script turns off too (1e-9 relative).
 - ``midpoint-speed``: ``midpoint`` without the acceleration term.
 
 ``--overrides`` switches elements off for an ablation (a controller knows them, as in

@@ -106,8 +106,14 @@ def transmission_omega(params: RigParams) -> float:
     return math.sqrt(screw.transmission_stiffness_n_per_m * (1.0 / motor_side_kg + 1.0 / screw.support_mass_kg))
 
 
-def check_integrable(params: RigParams, physics_step_s: float, ideal_drive: bool) -> None:
-    """Raise ValueError if a mode the integrator treats explicitly is too fast for the physics step."""
+def check_integrable(
+    params: RigParams, physics_step_s: float, ideal_drive: bool, explicit_damping: bool = False
+) -> None:
+    """Raise ValueError if a mode the integrator treats explicitly is too fast for the physics step.
+
+    ``explicit_damping``: MuJoCo's ``euler`` integrator (the midpoint drive), which is implicit in
+    the joints' damping only, so the LuGre laws' bristle damping and the transmission's damping
+    are explicit too: their rates (damping over inertia) count as modes."""
     screw, servo, qzs = params.screw, params.servo, params.qzs
     mass = params.lander.mass_kg
     modes = [("QZSParams.residual_stiffness_n_per_m", math.sqrt(abs(qzs.residual_stiffness_n_per_m) / mass))]
@@ -126,6 +132,14 @@ def check_integrable(params: RigParams, physics_step_s: float, ideal_drive: bool
             )
         if math.isfinite(screw.transmission_stiffness_n_per_m):
             modes.append(("ScrewStageParams.transmission_stiffness_n_per_m", transmission_omega(params)))
+        if explicit_damping and servo.bristle_stiffness_n_m_per_rad > 0:
+            motor = servo.rotor_inertia_kg_m2 + screw.screw_inertia_kg_m2  # the motor side alone
+            modes.append(("ServoParams.bristle_damping_n_m_s_per_rad", servo.bristle_damping_n_m_s_per_rad / motor))
+        if explicit_damping and math.isfinite(screw.transmission_stiffness_n_per_m):
+            rate = 2.0 * screw.transmission_damping_ratio * transmission_omega(params)
+            modes.append(("ScrewStageParams.transmission_damping_ratio", rate))
+    if explicit_damping and qzs.guide_friction_n > 0:
+        modes.append(("QZSParams.guide_bristle_damping_n_s_per_m", qzs.guide_bristle_damping_n_s_per_m / mass))
     for name, omega in modes:
         if omega * physics_step_s > MAX_OMEGA_DT:
             raise FieldError(

@@ -48,7 +48,7 @@ SLEW_PARAMETER = 7
 #: ``"mujoco"``: MuJoCo's own ``dcmotor`` stepping: the current at the step's end drives the step
 #: (``actearly``), the speed loop compares the reference at the step's end with the angle at its
 #: start and reads the speed of the step before, under ``implicitfast``; sub-micrometre excursions
-#: are first order in the step (docs/model.md, "Physics step"). ``"midpoint"``: the current at the
+#: are first order in the step (docs/model.md, "Drive scheme"). ``"midpoint"``: the current at the
 #: step's start drives it, and the speed loop reads the reference, angle and speed at the middle of
 #: the step its current is filtered over (:func:`microg_env.envs.period.speed_inputs`, every physics
 #: step), under MuJoCo's ``euler`` integrator, whose implicit part is the joints' damping only
@@ -394,6 +394,8 @@ class Rig:
         speed x step in every physics step (it reads the end of each step, where a first-order
         integrator's force is held over the step).
         """
+        if self.midpoint_drive:
+            raise ValueError("Rig.drive steps MuJoCo's own dcmotor inputs; a midpoint drive is stepped by LandingCore")
         model, ctrl, dt = self.model, data.ctrl, self.model.opt.timestep
         end = position_ref_rad + speed_ref_rad_s * dt * steps
         if self.ideal_drive:
@@ -660,7 +662,7 @@ def build_spec(
     loads_kg = tuple(loads_kg)
     validate_loads(loads_kg, params.lander.mass_kg)
     physics_step_s = check_physics_step(physics_step_s)
-    check_integrable(params, physics_step_s, ideal_drive)
+    check_integrable(params, physics_step_s, ideal_drive, explicit_damping=drive_scheme == "midpoint")
     spec = _load_template(xml_file)
     _apply_geometry_and_masses(spec, params, physics_step_s)
     _add_loads(spec, loads_kg)

@@ -347,7 +347,7 @@ def test_overrides_must_be_a_mapping():
 
 
 def test_the_midpoint_drive_converges_where_mujocos_stepping_does_not():
-    """``drive_scheme="midpoint"`` (docs/model.md, "Physics step"): the feed-forward's free-fall x,
+    """``drive_scheme="midpoint"`` (docs/model.md, "Drive scheme"): the feed-forward's free-fall x,
     a cancellation residual that amplifies the drive's step error about eight times, moves by
     under 0.5 % from 100 to 25 µs (measured: 0.03 % over 30 s); under MuJoCo's own stepping of the
     dcmotor it moves by 10 % (measured 11.5 %). Condition 1 to its largest free-fall x, near 3 s."""
@@ -381,3 +381,25 @@ def test_the_midpoint_drive_is_built_for_the_drive_alone():
     assert ideal.model.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     with pytest.raises(FieldError, match="drive_scheme must be one of 'mujoco', 'midpoint', got 'rk4'"):
         build_rig(drive_scheme="rk4")
+
+
+def test_the_midpoint_drive_refuses_damping_its_integrator_takes_explicitly():
+    """Under the midpoint drive's euler integrator the bristle damping and the transmission's
+    damping are explicit: a rate the step cannot integrate is refused, naming the parameter (with
+    1000 N m s/rad the motor ran away to 650 m/s before); ``implicitfast`` takes both. And
+    ``Rig.drive``, which steps MuJoCo's own inputs, refuses a midpoint rig."""
+    damped = replace(RigParams(), servo=replace(RigParams().servo, bristle_damping_n_m_s_per_rad=1000.0))
+    build_rig(damped)
+    with pytest.raises(FieldError, match=r"ServoParams.bristle_damping_n_m_s_per_rad makes .* physics_step_s <="):
+        build_rig(damped, drive_scheme="midpoint")
+    build_rig(damped, physics_step_s=1e-5, drive_scheme="midpoint")
+    stiff = replace(
+        RigParams(),
+        screw=replace(RigParams().screw, transmission_stiffness_n_per_m=3.0e9, transmission_damping_ratio=1.0),
+    )
+    build_rig(stiff)
+    with pytest.raises(FieldError, match=r"ScrewStageParams\.transmission_damping_ratio"):
+        build_rig(stiff, drive_scheme="midpoint")
+    rig = build_rig(drive_scheme="midpoint")
+    with pytest.raises(ValueError, match="a midpoint drive is stepped by LandingCore"):
+        rig.drive(mujoco.MjData(rig.model), 0.0, 0.0, 10)
