@@ -662,7 +662,9 @@ def build_spec(
     loads_kg = tuple(loads_kg)
     validate_loads(loads_kg, params.lander.mass_kg)
     physics_step_s = check_physics_step(physics_step_s)
-    check_integrable(params, physics_step_s, ideal_drive, explicit_damping=drive_scheme == "midpoint")
+    check_integrable(
+        params, physics_step_s, ideal_drive, explicit_damping=drive_scheme == "midpoint" and not ideal_drive
+    )
     spec = _load_template(xml_file)
     _apply_geometry_and_masses(spec, params, physics_step_s)
     _add_loads(spec, loads_kg)
