@@ -166,3 +166,16 @@ def test_the_sensitivity_page_says_so_where_a_section_reached_no_quantity(tmp_pa
     for section in _sections(page).values():
         numbers = section.split(sensitivity.QUANTITIES_HEADING)[1].split("\n\n![")[0]
         assert numbers.strip().splitlines() == [sensitivity.NOTHING_REACHED]
+
+
+@pytest.mark.slow
+def test_the_sensitivity_page_gives_mu_star_with_its_interval_and_sigma(tmp_path):
+    """x at the collision set to the speed loop's gain in µm (linear, friction no part): every
+    elementary effect of the gain is its range, 150 µm, so mu* is 150 with no spread (interval 0,
+    sigma 0), and the friction's is 0."""
+    campaign = Campaign.from_dict(MORRIS)
+    page = write_study(campaign, _sensitivity_table(campaign, reached=True), tmp_path).read_text()
+    assert "mu* ± its 95 % bootstrap half-width, sigma" in page
+    for section in _sections(page).values():
+        row = next(line for line in section.splitlines() if line.startswith("| x at the collision"))
+        assert f"`{GAIN}`: 150 ± 0, sigma 0; `{FRICTION}`: 0 ± 0, sigma 0 |" in row

@@ -52,7 +52,9 @@ NOTHING_REACHED = (
 QUANTITIES_INTRO = """\
 The spread is over the design's points that completed (a grid that covers the ranges, not a probability \
 sample): the 5th to 95th percentile. mu* is in the quantity's unit for one assumption moved over its whole \
-range, from the trajectories whose every point reached the quantity.
+range, from the trajectories whose every point reached the quantity; its interval is SALib's bootstrap over \
+those trajectories (1000 resamples, 95 %). sigma, the spread of the elementary effects, as large as mu* \
+means the assumption's effect depends on the others (an interaction or a curve).
 """
 
 
@@ -169,10 +171,13 @@ def _case(
             if whole.sum() < 2:
                 continue  # a stage this scenario does not have, or too few trajectories reached it
             keep = np.repeat(whole, steps)
-            analysed = morris.analyze(problem, unit[keep], y[keep], num_levels=levels, seed=0)
-            mu_star = np.asarray(analysed["mu_star"])
+            analysed = morris.analyze(problem, unit[keep], y[keep], num_levels=levels, num_resamples=1000, seed=0)
+            mu_star, sigma = np.asarray(analysed["mu_star"]), np.asarray(analysed["sigma"])
+            half = np.asarray(analysed["mu_star_conf"])  # SALib's bootstrap over the trajectories, 95 %
             ranking[label, _series(case, scenario)] = mu_star
-            top = "; ".join(f"`{keys[j]}`: {mu_star[j]:.3g}" for j in np.argsort(-mu_star)[:3])
+            top = "; ".join(
+                f"`{keys[j]}`: {mu_star[j]:.3g} ± {half[j]:.2g}, sigma {sigma[j]:.3g}" for j in np.argsort(-mu_star)[:3]
+            )
             finite_y = y[np.isfinite(y)]
             low, high = np.percentile(finite_y, [5, 95])
             rows.append(
@@ -187,7 +192,14 @@ def _case(
             )
     if not rows:
         return [*lines, NOTHING_REACHED]
-    header = ["quantity", "scenario", "median", "5–95 %", "trajectories", "largest mu* (the assumption: mu*)"]
+    header = [
+        "quantity",
+        "scenario",
+        "median",
+        "5–95 %",
+        "trajectories",
+        "largest mu* (the assumption: mu* ± its 95 % bootstrap half-width, sigma)",
+    ]
     return [*lines, *QUANTITIES_INTRO.splitlines(), "", *markdown_table(header, rows)]
 
 
