@@ -29,10 +29,11 @@ from microg_env.analysis.summary import Summary, finite_mean, summarise
 from microg_env.controllers.registry import check_controller_name, controller_digest
 from microg_env.experiments.comparison_settings import MAX_SEEDS, MAX_WORKERS, TEST_SEED, scenario_seeds
 from microg_env.interface import CONTROLLER_NAMES
-from microg_env.params import CONTROL_PERIOD_S
+from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S
 from microg_env.rollout.runner import run_many
 from microg_env.rollout.spec import RunSpec
 from microg_env.scenarios import Scenario, comparison_scenarios
+from microg_env.task import TaskSettings
 from microg_env.trajectory import Trajectory
 
 #: The window of x kept for the figure, s before and after the first touchdown.
@@ -122,6 +123,7 @@ class Comparison:
     labels: dict[str, str] = field(default_factory=dict)
     #: The rig's parameters that differ from the paper's, by dotted path (``microg compare --rig``).
     overrides: dict[str, Any] = field(default_factory=dict)
+    physics_step_s: float = PHYSICS_STEP_S
 
     def relabelled(self, labels: Mapping[str, str]) -> Comparison:
         """This comparison with each controller run as one of ``labels``' values shown under its key
@@ -209,6 +211,8 @@ class Comparison:
             "seeds": {name: list(seeds) for name, seeds in self.seeds.items()},
             "randomize": self.randomize,
             "control_period_s": self.control_period_s,
+            "physics_step_s": self.physics_step_s,
+            "drive_scheme": TaskSettings().drive_scheme,  # every run's: RunSpec keeps the environment's
             "quantities": {
                 name: {"label": q.label, "si_unit_times": q.scale, "unit": q.unit} for name, q in QUANTITIES.items()
             },
@@ -269,11 +273,13 @@ def compare(
     reference: str | None = None,
     sensor_set: str = "extended",
     overrides: Mapping[str, Any] | None = None,
+    physics_step_s: float = PHYSICS_STEP_S,
 ) -> Comparison:
     """Run every controller on every scenario and seed; ``progress(fraction)`` as episodes advance;
     ``reference``: one of ``controllers``, the others paired against it; ``sensor_set``: the rig's
     sensors ("paper": no pad force, no accelerometer); ``overrides``: the rig's parameters by dotted
-    path (a rig file's), which every controller's model assumes too."""
+    path (a rig file's), which every controller's model assumes too; ``physics_step_s``: the
+    physics step (``benchmarks/convergence_held_out.py`` runs a comparison at two)."""
     known = comparison_scenarios()
     names = tuple(known) if scenarios is None else tuple(scenarios)
     for name in names:
@@ -308,6 +314,7 @@ def compare(
         reference=reference,
         sensor_set=sensor_set,
         overrides=dict(RunSpec(overrides=overrides or {}).overrides),  # checked, a default's value dropped
+        physics_step_s=physics_step_s,
     )
     specs = []
     for case in cases:
@@ -324,6 +331,7 @@ def compare(
                 duration_s=length,
                 sensor_set=sensor_set,
                 overrides=comparison.overrides,
+                physics_step_us=physics_step_s * 1e6,
             )
         )
     results: list[CaseResult | None] = [None] * len(cases)

@@ -85,7 +85,8 @@ def render_markdown(c: Comparison) -> str:
         f"Controllers {', '.join(c.controllers)} on the same scenarios and seeds "
         f"({_count(c.seeds_per_scenario, 'seed')} per scenario, each scenario its own{own_plant}), {plant}, "
         f"every imperfection on, {SENSORS[c.sensor_set]}, control period "
-        f"{c.control_period_s * 1e6:g} us.{rig} Every scenario is held out of training:",
+        f"{c.control_period_s * 1e6:g} us, physics step {c.physics_step_s * 1e6:g} us.{rig} Every scenario is held out "
+        "of training:",
         "",
     ]
 

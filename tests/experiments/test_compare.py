@@ -74,6 +74,15 @@ def test_parallel_workers_give_the_same_results():
     assert [r.case for r in one.results] == [r.case for r in two.results]
 
 
+def test_a_comparison_runs_at_the_physics_step_it_is_given():
+    """``physics_step_s`` reaches every run (benchmarks/convergence_held_out.py compares two steps)."""
+    runs = [compare(["pid"], ["condition-2"], seeds=1, duration_s=0.3, physics_step_s=step) for step in (1e-4, 5e-5)]
+    assert [run.physics_step_s for run in runs] == [1e-4, 5e-5]
+    free_fall = [run.results[0].values["free_fall_excursion_m"] for run in runs]
+    assert free_fall[0] != free_fall[1]
+    assert free_fall[0] == pytest.approx(free_fall[1], rel=0.01)  # the PID's x converges (docs/model.md)
+
+
 @pytest.mark.slow
 def test_the_report_holds_the_table_ratios_figures_and_json(randomized, tmp_path):
     text = render_markdown(randomized)
@@ -85,6 +94,8 @@ def test_the_report_holds_the_table_ratios_figures_and_json(randomized, tmp_path
     assert sorted(p.name for p in out.iterdir()) == sorted(COMPARISON_FILES)
     data = json.loads((out / "comparison.json").read_text())
     assert data["randomize"] is True
+    assert (data["physics_step_s"], data["drive_scheme"]) == (1e-4, "midpoint")  # what the runs stepped
+    assert "physics step 100 us" in text
     assert data["seeds"] == {"condition-2": list(scenario_seeds("condition-2", TEST_SEED, 2))}
     mean = data["summary"]["pid"]["collision_excursion_m"]["mean"]
     assert mean == pytest.approx(summarise(randomized.runs("pid"), lambda r: r.values["collision_excursion_m"]).mean)
