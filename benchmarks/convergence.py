@@ -10,12 +10,13 @@ The study behind the default PHYSICS_STEP_S and what docs/model.md ("Physics ste
 100 us converges for the PID's excursions, every compensation error and the landing, not for the
 sub-micrometre excursions of the model-based and learned controllers nor for the 5 ms dx, so the
 verdict line says "none" for every controller; 100 us is a trade-off, not this criterion's pass.
-``--integrator``, ``--overrides`` and ``--off`` give the page's ablations; ``--drive-scheme midpoint``
-runs the drive whose speed loop reads the step's middle (docs/model.md, "Drive scheme").
+``--integrator``, ``--overrides`` and ``--off`` give the page's ablations; ``--drive-scheme`` is the
+environment's default (``"midpoint"``) unless given: ``mujoco`` runs MuJoCo's own stepping of the
+drive (docs/model.md, "Drive scheme").
 
 Usage: ``python benchmarks/convergence.py [--steps-us 200 100 50 25] [--duration S]
 [--controllers pid,feedforward,residual-ppo] [--integrator rk4] [--overrides JSON] [--off cogging]
-[--drive-scheme midpoint]``.
+[--drive-scheme mujoco]``.
 Prints one table per controller and condition (and the excursions' values at each step) and, last,
 the steps that converge on all three conditions, per controller.
 """
@@ -34,7 +35,7 @@ from microg_env.controllers import make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.params import RigParams, with_overrides
 from microg_env.rollout.episode import run_with_metrics
-from microg_env.sim.model import DRIVE_SCHEMES
+from microg_env.sim.model import DEFAULT_DRIVE_SCHEME, DRIVE_SCHEMES
 
 RELATIVE_TOLERANCE = 0.01
 COMPENSATION_TOLERANCE_PP = 0.02
@@ -91,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=None, help="simulated time per run (default: 30 s)")
     parser.add_argument("--controllers", default="pid,feedforward,residual-ppo")
     parser.add_argument("--integrator", choices=tuple(INTEGRATORS), default=None, help="default: the scheme's")
-    parser.add_argument("--drive-scheme", choices=DRIVE_SCHEMES, default="mujoco")
+    parser.add_argument("--drive-scheme", choices=DRIVE_SCHEMES, default=DEFAULT_DRIVE_SCHEME)
     parser.add_argument(
         "--overrides", type=json.loads, default={}, help="rig parameters, e.g. '{\"servo.cogging_torque_n_m\": 0}'"
     )

@@ -38,7 +38,7 @@ from microg_env.params import (
 )
 from microg_env.scenarios import Scenario, ScenarioSampler
 from microg_env.scenarios import condition as paper_condition
-from microg_env.sim.model import DRIVE_SCHEMES, check_physics_step
+from microg_env.sim.model import DEFAULT_DRIVE_SCHEME, DRIVE_SCHEMES, check_physics_step
 from microg_env.validate import FieldError
 
 
@@ -122,7 +122,7 @@ class TaskSettings(ActingSettings):
     scenario_sampler: ScenarioSampler | str | Mapping | None = None
     control_period_s: float = CONTROL_PERIOD_S
     physics_step_s: float = PHYSICS_STEP_S
-    drive_scheme: str = "mujoco"
+    drive_scheme: str = DEFAULT_DRIVE_SCHEME
     imperfections: Imperfections | Mapping | None = None
     domain_randomization: DomainRandomization | Mapping | bool | str | None = None
     sensor_set: str = "extended"

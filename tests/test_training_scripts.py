@@ -45,8 +45,8 @@ def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(mo
     assert select_seed.main(["--episodes", "8", str(runs[0])]) == 0
     out = capsys.readouterr().out
     assert out.startswith("8 validation episodes, seeds 500-507, sensor set extended\n")
-    assert "| zero residual (adaptive) |  | 0.1367 | 0.0134 | 1.234 | 1.000x | 3.939 | 0.508 |" in out
-    assert f"| {runs[0]} | 1 | 0.1195 | 0.0129 | 1.066 | 0.864x | 3.529 | 0.372 |" in out
+    assert "| zero residual (adaptive) |  | 0.1346 | 0.0132 | 1.215 | 1.000x | 3.797 | 0.510 |" in out
+    assert f"| {runs[0]} | 1 | 0.1195 | 0.0130 | 1.065 | 0.877x | 3.418 | 0.372 |" in out
     assert out.strip().endswith(f"lowest selection cost: {runs[0]}")
     lines = {}
     for rig in ("extended", "paper"):  # --sensor-set: the same episodes on another rig

@@ -122,7 +122,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``scenario_sampler`` | a ``ScenarioSampler`` ("training", or its fields as a dict): a schedule per reset |
     | ``control_period_s`` | control period: the paper's 1000, 500, 200 or 100 us, up to 10 ms |
     | ``physics_step_s`` | physics step; it must divide the control period |
-    | ``drive_scheme`` | ``"mujoco"`` or ``"midpoint"``: the drive's inputs at the step's middle (converged) |
+    | ``drive_scheme`` | ``"midpoint"`` (default: the drive's inputs at the step's middle) or ``"mujoco"`` |
     | ``decision_period`` | control periods an action is held (the base controller still runs every one) |
     | ``action_mode`` | ``"speed"`` or ``"residual"`` (see Action Space) |
     | ``base_controller`` | the controller a residual action moves the setpoint of |

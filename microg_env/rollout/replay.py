@@ -192,7 +192,7 @@ def _copy_first_rig(core: LandingCore) -> None:
     for name in ("qpos", "qvel", "act", "ctrl", "qfrc_applied"):
         field = getattr(physics, name)
         field[1:] = field[0]
-    for name in ("position_ref", "pending_command", "command", "previous_action"):
+    for name in ("position_ref", "pending_command", "command", "previous_action", "motor_speed"):
         field = getattr(core, name)
         field[1:] = field[0]
 

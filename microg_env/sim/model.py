@@ -55,6 +55,9 @@ SLEW_PARAMETER = 7
 #: (``implicitfast`` also takes the friction's bristle damping as acting in sliding, where it does
 #: not). The ideal drive is the same under both.
 DRIVE_SCHEMES = ("mujoco", "midpoint")
+#: The environment's drive scheme (converged). :func:`build_rig` keeps ``"mujoco"`` by default: a rig
+#: built on its own is stepped with ``mujoco.mj_step``, which the midpoint drive cannot be.
+DEFAULT_DRIVE_SCHEME = "midpoint"
 #: Slew rate standing for a zero speed reference (a zero rate would switch the slew limiter off).
 MIN_SLEW_RAD_S = 1e-12
 

@@ -191,7 +191,7 @@ def test_the_compiled_pid_loop_steps_the_midpoint_drive_as_the_environment_does(
     compiled = run_episode(MicroGravityLandingEnv(**settings), pid, 5, duration_s=0.3)
     stepped = run_episode(MicroGravityLandingEnv(**settings), pid, 5, duration_s=0.3, on_step=lambda env, info: None)
     np.testing.assert_array_equal(compiled.x_m, stepped.x_m)
-    mujocos = run_episode(MicroGravityLandingEnv(condition=3), pid, 5, duration_s=0.3)
+    mujocos = run_episode(MicroGravityLandingEnv(condition=3, drive_scheme="mujoco"), pid, 5, duration_s=0.3)
     assert np.abs(compiled.x_m - mujocos.x_m).max() > 1e-9
 
 

@@ -164,3 +164,29 @@ def test_a_log_starts_where_its_episode_did():
     log = recorder.log()
     assert log.descent_height_m == env.unwrapped.core.episodes[0].height_m != 0.09
     assert replay(log).rms()["encoder_m"] < 1.2 * reading_noise(RigParams())["encoder_m"]
+
+
+def test_a_replay_window_starts_its_shifted_copies_from_the_replays_own_drive_state():
+    """At each window the replay's two shifted copies take the first rig's state, the midpoint
+    drive's last motor speed included: rigs driven apart and then copied step on bit for bit alike
+    (before 0.22.0 the copies kept their own last speed, a different speed input each)."""
+    from microg_env.envs.core import LandingCore
+    from microg_env.rollout.replay import _copy_first_rig
+    from microg_env.task import TaskSettings
+
+    core = LandingCore(3, TaskSettings(condition=1), batched=True)
+    every = np.arange(3)
+    rngs = [np.random.default_rng(0) for _ in every]
+    core.reset(every, rngs)
+    for _ in range(20):  # each rig its own command: their drives part
+        core.step(every, np.array([0.1, -0.2, 0.3]), rngs)
+    assert len(set(core.motor_speed)) == 3
+    _copy_first_rig(core)
+    rngs = [np.random.default_rng(1) for _ in every]  # the same noise from here on
+    x = []
+    for _ in range(20):
+        core.step(every, np.full(3, 0.05), rngs)
+        x.append(core.info(every, np.zeros(3, dtype=np.int64))["x_m"])
+    x = np.array(x)
+    np.testing.assert_array_equal(x[:, 1], x[:, 0])
+    np.testing.assert_array_equal(x[:, 2], x[:, 0])

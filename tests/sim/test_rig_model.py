@@ -403,3 +403,18 @@ def test_the_midpoint_drive_refuses_damping_its_integrator_takes_explicitly():
     rig = build_rig(drive_scheme="midpoint")
     with pytest.raises(ValueError, match="a midpoint drive is stepped by LandingCore"):
         rig.drive(mujoco.MjData(rig.model), 0.0, 0.0, 10)
+
+
+def test_the_environments_step_the_midpoint_drive_by_default_and_a_bare_rig_mujocos():
+    """0.22.0: every environment id runs the converged drive unless told; ``build_rig`` alone keeps
+    MuJoCo's own stepping, the one ``mujoco.mj_step`` can step without the speed-input kernel."""
+    import gymnasium as gym
+
+    import microg_env  # noqa: F401  (registers the environments)
+
+    for env_id in ("MicroGravityLanding-v1", "MicroGravityLanding-Residual-v7"):
+        env = gym.make(env_id)
+        assert env.unwrapped.rig.midpoint_drive, env_id
+        env.close()
+    assert gym.make("MicroGravityLanding-v1", drive_scheme="mujoco").unwrapped.rig.midpoint_drive is False
+    assert build_rig().midpoint_drive is False
