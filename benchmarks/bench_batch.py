@@ -10,7 +10,9 @@ All in one run, on the same compiled model (condition 2, every imperfection on),
   all of them in one call (``nstep = 10 x periods``), the fastest the API allows: the ceiling the
   vector env is measured against, with no Python between periods at all.
 
-Throughput is simulation steps per second (rigs x physics steps / wall time).
+Throughput is simulation steps per second (rigs x physics steps / wall time). Every case runs
+MuJoCo's own drive stepping (``drive_scheme="mujoco"``), which raw ``Batch.step`` can step through;
+``benchmarks/bench_drive_scheme.py`` times the midpoint drive against it.
 
 Usage: ``python benchmarks/bench_batch.py [--sizes 1 16 64 256] [--periods 300] [--repeats 5]``.
 """
@@ -30,7 +32,7 @@ from microg_env.envs.vector import MicroGravityLandingVectorEnv
 
 
 def single_env_rate(periods: int, repeats: int) -> float:
-    env = MicroGravityLandingEnv(condition=2)
+    env = MicroGravityLandingEnv(condition=2, drive_scheme="mujoco")
     controller = make_controller("pid", env.settings.control_period_s)
     observation, _ = env.reset(seed=0)
 
@@ -44,7 +46,7 @@ def single_env_rate(periods: int, repeats: int) -> float:
 
 def vector_rates(size: int, periods: int, repeats: int) -> tuple[float, float, float]:
     """Median vector env and raw Batch.step rates and the median of their ratios, timed in turn."""
-    env = MicroGravityLandingVectorEnv(size, condition=2)
+    env = MicroGravityLandingVectorEnv(size, condition=2, drive_scheme="mujoco")
     controller = make_controller("pid", env.core.settings.control_period_s)
     observations, _ = env.reset(seed=0)
     frame_skip, batch = env.core.settings.frame_skip, env.core.physics.batch

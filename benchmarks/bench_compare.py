@@ -3,7 +3,8 @@
 * ``compare``: the command as a user runs it (``--controllers``, ``--scenarios``, ``--seeds``), and
   its physics floor measured in the same run: raw ``Batch.step`` of each scenario's batch
   (controllers x seeds rigs, every core) in one call over its first 0.3 s (free fall: no contact,
-  the cheapest physics), scaled to the scenario's duration - a floor no implementation can beat.
+  the cheapest physics), scaled to the scenario's duration - a floor no implementation can beat
+  (under the default midpoint drive the raw call skips its per-step speed input, so it is lower still).
 * ``train``: ``microg train --algo ppo`` with the packaged recipe for ``--timesteps`` steps (its
   evaluations included), as environment steps per second of wall time.
 

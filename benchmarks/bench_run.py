@@ -9,6 +9,9 @@ For each controller it times, interleaved over ``--repeats`` rounds and reportin
   before each control period's ``mj_step`` - the floor any controller loop in Python can reach.
 
 The ratio bare/episode is the environment's throughput as a share of that floor (1: no overhead).
+Both run MuJoCo's own drive stepping (``drive_scheme="mujoco"``): the bare loop can replay its
+inputs once a period, which the midpoint drive's per-step speed input cannot be
+(``benchmarks/bench_drive_scheme.py`` times the midpoint drive against it).
 The residual policy is ``residual-ppo`` (acting every 5 periods on ``feedforward``).
 
 Usage: ``python benchmarks/bench_run.py [--repeats N] [--condition N] [--controllers pid,feedforward] [--duration S]``.
@@ -69,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"condition {args.condition}, medians of {args.repeats} interleaved rounds")
     print(f"{'controller':<14}{'episode [s]':>13}{'bare [s]':>10}{'bare/episode':>14}{'steps/s':>10}")
     for name in args.controllers.split(","):
-        env = MicroGravityLandingEnv(condition=args.condition)
+        env = MicroGravityLandingEnv(condition=args.condition, drive_scheme="mujoco")
         controller = make_controller(name, env.settings.control_period_s)
         inputs, frame_skip = replay_inputs(env, controller, seed=0, duration_s=args.duration)
         episodes, floors = [], []

@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
             duration_s=args.duration,
             workers=args.workers,
             reference=args.reference,
-            physics_step_s=step_us * 1e-6,
+            physics_step_s=step_us / 1e6,
         )
         for step_us in args.steps_us
     ]

@@ -62,7 +62,7 @@ REWARD_THRESHOLD = 678.0
 #: MicroGravityLanding-Residual-v5 --seeds 100 --scenarios training``; 676 from 0.19.0 to 0.21.0).
 GATED_REWARD_THRESHOLD = 674.0
 #: MicroGravityLanding-Residual-v7's: its zero residual's (`adaptive-dither` alone, x0 = 1 um), the
-#: same way (769.0 +- 11.1 standard error; ``python training/returns_table.py --env
+#: same way (768.99 +- 11.1 standard error; ``python training/returns_table.py --env
 #: MicroGravityLanding-Residual-v7 --seeds 100 --scenarios training``; 769 to 0.21.0). Returns grow with an
 #: episode's length: compare a policy with it on the same seeds, 1000-1099.
 ALIGNED_REWARD_THRESHOLD = 768.0

@@ -27,11 +27,12 @@ GRAVITY_M_S2 = 9.8009
 LOAD_CAPACITY_KG = 620.0
 
 #: Default physics step, s. The convergence study ``benchmarks/convergence.py`` (docs/model.md,
-#: "Physics step"): at this step the PID's excursions, every compensation error and the landing are
-#: within 1 % (0.02 percentage points) of a 4x finer step; the sub-micrometre excursions of the
-#: model-based and learned controllers read ~15 % low and the 5 ms dx is off by up to 14 %, first
-#: order in the step, which a 4x finer step would only quarter. It divides all of the paper's control
-#: periods (1000, 500, 200 and 100 us), so they can be compared on one step.
+#: "Physics step" and "Drive scheme"): under the default midpoint drive the excursions of every
+#: classical controller, every compensation error and the landing are within 1 % of a 4x finer step
+#: (the adaptive ones' free fall 3 %), and the held-out means and ratios within 2 %
+#: (``benchmarks/convergence_held_out.py``); the 5 ms dx keeps a first-order error of up to 4 %. It
+#: divides all of the paper's control periods (1000, 500, 200 and 100 us), so they can be compared
+#: on one step.
 PHYSICS_STEP_S = 1.0e-4
 #: Physics steps accepted, s: finer than 10 us buys nothing measurable, coarser than 1 ms does not
 #: resolve the drive's 100 Hz speed loop.

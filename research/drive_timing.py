@@ -137,7 +137,9 @@ def run(controller: str, condition: int, step_us: float, args: argparse.Namespac
     """x in free fall and at the collision, µm, of one condition under ``args``' scheme."""
     scheme = args.scheme
     params = with_overrides(RigParams(), args.overrides)
-    env = MicroGravityLandingEnv(condition=condition, physics_step_s=step_us * 1e-6, params=params)
+    env = MicroGravityLandingEnv(  # MuJoCo's own stepping: the probe's schemes replace it per step
+        condition=condition, physics_step_s=step_us / 1e6, params=params, drive_scheme="mujoco"
+    )
     lander = env.unwrapped.core
     model = lander.rig.model
     model.actuator_actearly[:] = scheme == "shipped"

@@ -441,7 +441,7 @@ def test_the_drive_timing_probes_shipped_scheme_is_the_environment():
     from microg_env.rollout.episode import run_with_metrics
 
     probe = importlib.import_module("drive_timing")
-    env = MicroGravityLandingEnv(condition=1)
+    env = MicroGravityLandingEnv(condition=1, drive_scheme="mujoco")
     metrics = run_with_metrics(env, make_controller("feedforward", env.settings.control_period_s), seed=0,
                                duration_s=1.0)[2]  # fmt: skip
     args = argparse.Namespace(overrides={}, duration=1.0, own_friction=False, integrator="implicitfast")

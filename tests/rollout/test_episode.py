@@ -108,6 +108,7 @@ def _same_state(fast_env, slow_env, fast_pid, slow_pid):
         ({"condition": 3}, "pid-dom", 3),  # weights placed in flight, a period finished outside the loop
         ({"condition": 3, "reward_descent_weight": 0.5}, "pid-dom", 3),  # the descent term, two windows
         ({"scenario_sampler": "training", "domain_randomization": "full"}, "pid", 7),  # a drawn plant
+        ({"condition": 3, "drive_scheme": "mujoco"}, "pid-dom", 3),  # MuJoCo's own stepping: nstep per period
         ({"condition": 2, "imperfections": Imperfections.none()}, "pid", 1),  # the ideal drive, exact sensors
         ({"condition": 2, "sensor_set": "paper", "control_period_s": 5e-4}, "pid", 2),  # sensors missing, 5 steps
     ],
