@@ -19,6 +19,7 @@ import sys
 
 import numpy as np
 
+from microg_env.analysis.summary import finite_mean
 from microg_env.experiments.comparison import QUANTITIES, compare
 from microg_env.scenarios import HELD_OUT
 
@@ -30,12 +31,6 @@ HEADLINE = ("collision_excursion_m", "free_fall_excursion_m", "compensation_erro
 def values(comparison, controller: str, quantity: str) -> np.ndarray:
     """The quantity of every episode of ``controller``, in the comparison's case order."""
     return np.array([run.values[quantity] for run in comparison.runs(controller)])
-
-
-def mean(x: np.ndarray) -> float:
-    """The mean of the episodes that reached the quantity (NaN if none did)."""
-    finite = x[np.isfinite(x)]
-    return float(finite.mean()) if finite.size else float("nan")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -78,12 +73,13 @@ def main(argv: list[str] | None = None) -> int:
             a, b = (values(run, controller, quantity) for run in runs)
             ok = np.isfinite(a) & np.isfinite(b) & (b != 0)
             worst = np.abs(a[ok] / b[ok] - 1.0).max() if ok.any() else np.nan
-            change = mean(a) / mean(b) - 1.0
+            coarse_mean, fine_mean = finite_mean(a), finite_mean(b)
+            change = coarse_mean / fine_mean - 1.0
             ratios = ["—", "—"]
             if controller != args.reference:
                 ratios = [f"{run.paired(controller, quantity).ratio:.3f}" for run in runs]
             print(
-                f"| `{controller}` | {q.label} [{q.unit}] | {mean(a) * q.scale:.4g} | {mean(b) * q.scale:.4g}"
+                f"| `{controller}` | {q.label} [{q.unit}] | {coarse_mean * q.scale:.4g} | {fine_mean * q.scale:.4g}"
                 f" | {100 * change:+.1f} % | {100 * worst:.1f} % | {ratios[0]} | {ratios[1]} |",
                 flush=True,
             )

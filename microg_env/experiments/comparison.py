@@ -33,7 +33,7 @@ from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S
 from microg_env.rollout.runner import run_many
 from microg_env.rollout.spec import RunSpec
 from microg_env.scenarios import Scenario, comparison_scenarios
-from microg_env.task import TaskSettings
+from microg_env.sim.model import DEFAULT_DRIVE_SCHEME
 from microg_env.trajectory import Trajectory
 
 #: The window of x kept for the figure, s before and after the first touchdown.
@@ -212,7 +212,7 @@ class Comparison:
             "randomize": self.randomize,
             "control_period_s": self.control_period_s,
             "physics_step_s": self.physics_step_s,
-            "drive_scheme": TaskSettings().drive_scheme,  # every run's: RunSpec keeps the environment's
+            "drive_scheme": DEFAULT_DRIVE_SCHEME,  # every run's: RunSpec keeps the environment's default
             "quantities": {
                 name: {"label": q.label, "si_unit_times": q.scale, "unit": q.unit} for name, q in QUANTITIES.items()
             },
