@@ -30,7 +30,7 @@ LOAD_CAPACITY_KG = 620.0
 #: "Physics step" and "Drive scheme"): under the default midpoint drive the excursions of every
 #: classical controller, every compensation error and the landing are within 1 % of a 4x finer step
 #: (the adaptive ones' free fall 3 %), and the held-out means and ratios within 2 %
-#: (``benchmarks/convergence_held_out.py``); the 5 ms dx keeps a first-order error of up to 4 %. It
+#: (``benchmarks/convergence_comparison.py``); the 5 ms dx keeps a first-order error of up to 4 %. It
 #: divides all of the paper's control periods (1000, 500, 200 and 100 us), so they can be compared
 #: on one step.
 PHYSICS_STEP_S = 1.0e-4

@@ -19,7 +19,7 @@ SMOKE_ARGS = {
     "bench_reproduce": ["--repeats", "1", "--duration", "0.5"],
     "convergence": ["--steps-us", "100", "25", "--duration", "0.2", "--controllers", "pid,residual-ppo"],
     "bench_drive_scheme": ["--sizes", "2", "--seconds", "0.05", "--repeats", "1"],
-    "convergence_held_out": [
+    "convergence_comparison": [
         "--controllers",
         "pid,feedforward",
         "--reference",
@@ -28,6 +28,8 @@ SMOKE_ARGS = {
         "heavy-single",
         "--seeds",
         "1",
+        "--randomize",
+        "none",
         "--duration",
         "0.3",
         "--workers",

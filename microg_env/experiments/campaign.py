@@ -28,8 +28,9 @@ Monte Carlo draws (``samples:``) and seeds, expanded to the campaign's runs.
     report: period-bandwidth        # a study page to write (microg_env.experiments.studies)
 
 A key names a RunSpec field (``controller``, ``control_period_us``, ...), a PID gain
-(``gains.ki_per_s2``), an imperfection (``imperfections.friction``) or a rig parameter by dotted
-path (``qzs.guide_friction_n``). Keys joined by commas vary together: each value is a list of
+(``gains.ki_per_s2``), an imperfection (``imperfections.friction``), a rig parameter by dotted
+path (``qzs.guide_friction_n``) or one of the plant alone, which the controllers do not know
+(``plant_overrides.servo.speed_loop_gain_hz``). Keys joined by commas vary together: each value is a list of
 one value per key. A parameter is named once in the file (``pad.stiffness_n_per_m`` and
 ``overrides.pad.stiffness_n_per_m`` are one: fixed in ``base``, swept or drawn, not two of these);
 the rig file's parameters hold where the file names none of them.

@@ -279,7 +279,7 @@ def compare(
     ``reference``: one of ``controllers``, the others paired against it; ``sensor_set``: the rig's
     sensors ("paper": no pad force, no accelerometer); ``overrides``: the rig's parameters by dotted
     path (a rig file's), which every controller's model assumes too; ``physics_step_s``: the
-    physics step (``benchmarks/convergence_held_out.py`` runs a comparison at two)."""
+    physics step (``benchmarks/convergence_comparison.py`` runs a comparison at two)."""
     known = comparison_scenarios()
     names = tuple(known) if scenarios is None else tuple(scenarios)
     for name in names:

@@ -97,9 +97,10 @@ def best(scored: Sequence[Candidate]) -> Candidate:
 
 
 def retune(spec: RunSpec, workers: int = 1) -> Candidate:
-    """The best robust ``pid`` on ``spec``'s own rig, schedule and control period (nominal plant,
-    seed :data:`TUNING_SEED`), from :data:`RETUNE_KI` x :data:`RETUNE_ZETA`."""
-    schedule = spec.replace(controller="pid", gains={}, randomize=False)
+    """The best robust ``pid`` on ``spec``'s own rig as its controller assumes it (no plant
+    overrides), schedule and control period (nominal plant, seed :data:`TUNING_SEED`), from
+    :data:`RETUNE_KI` x :data:`RETUNE_ZETA`."""
+    schedule = spec.replace(controller="pid", gains={}, randomize=False, plant_overrides={})
     w0 = omega0_squared(schedule)
     candidates = [candidate_gains(ki, zeta, 0.0, False, w0) for ki in RETUNE_KI for zeta in RETUNE_ZETA]
     return best(score(candidates, [schedule], workers))
@@ -125,12 +126,13 @@ def run_with_retuning(
             gains.append({})
             members.append(i)
             continue
-        if spec.plant_key not in tuned:
+        assumed = spec.replace(plant_overrides={}).plant_key  # what it is tuned on
+        if assumed not in tuned:
             try:
-                tuned[spec.plant_key] = retune(spec).gains_dict()
+                tuned[assumed] = retune(spec).gains_dict()
             except Exception as error:  # its runs fail; the others run on
-                tuned[spec.plant_key] = error
-        chosen = tuned[spec.plant_key]
+                tuned[assumed] = error
+        chosen = tuned[assumed]
         if isinstance(chosen, BaseException):
             if progress is not None:
                 progress(1)

@@ -163,7 +163,7 @@ def _planned_reference(spec: RunSpec) -> tuple[tuple, list] | None:
     if spec.randomize:
         return None
     scenario = spec.scenario_schedule()
-    params = apply_imperfections(scenario.rig_params(spec.rig_params()), spec.imperfection_flags())
+    params = apply_imperfections(scenario.rig_params(spec.plant_params()), spec.imperfection_flags())
     job = [scenario, params, spec.control_period_s, spec.physics_step_s, scenario.duration_s]
     return reference_key(*job[:4]), job
 

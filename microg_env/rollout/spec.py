@@ -1,9 +1,10 @@
 """One run, fully specified: :class:`RunSpec`, frozen, serialisable and content-hashed.
 
 A spec names everything a run depends on: the test schedule, the rig's parameters by dotted path
-(``servo.speed_loop_gain_hz``, ``qzs.guide_friction_n``), the imperfections switched off, the domain
-randomisation, the controller (a name, a policy folder, or ``pid-retuned``: the PID re-tuned on
-this spec's rig and period), its gains, the seed, the control period, the physics step and the
+(``servo.speed_loop_gain_hz``, ``qzs.guide_friction_n``), those in which the plant differs from the
+rig its controller assumes, the imperfections switched off, the domain randomisation, the
+controller (a name, a policy folder, or ``pid-retuned``: the PID re-tuned on this spec's rig and
+period), its gains, the seed, the control period, the physics step and the
 duration. Two specs with equal content have equal :attr:`RunSpec.hash`, on any machine and in any
 process, so a campaign's stored results are keyed by it.
 """
@@ -52,7 +53,7 @@ RANDOMIZE = {False: None, True: DomainRandomization()} | {
 }
 #: Fields added after campaigns were first stored, with their defaults (left out of :meth:`RunSpec.as_dict`
 #: at the default, so the content hash of every spec written before them is unchanged).
-ADDED_FIELDS = {"sensor_set": "extended", "controller_digest": None}
+ADDED_FIELDS = {"sensor_set": "extended", "controller_digest": None, "plant_overrides": {}}
 #: Characters of the SHA-256 content hash kept (64 bits: no collision in any campaign's lifetime).
 HASH_CHARS = 16
 #: The fields runs of one batch may differ in (the vector environment steps them together): who
@@ -73,7 +74,10 @@ PER_RIG_FIELDS = (
 class RunSpec:
     """One run; see the module docstring. ``loads`` and ``descent_height_m`` replace the named
     scenario's schedule ((kg, switch height m or None) pairs; a custom schedule), ``duration_s`` its
-    length; ``overrides`` are rig parameters by dotted path; ``gains`` replace fields of the PID's
+    length; ``overrides`` are rig parameters by dotted path, the rig that runs and that its
+    controller assumes; ``plant_overrides`` change the rig that runs alone: an unknown the
+    controller does not know (it assumes ``overrides``; an oracle is told it, as it is told a drawn
+    plant; one equal to the assumed rig's value is dropped); ``gains`` replace fields of the PID's
     tuned gains (``ki_per_s2``, ...); ``imperfections`` switches named imperfections (all on by
     default). ``controller_digest`` is not given but read: a policy's contents
     (:func:`~microg_env.controllers.registry.controller_digest`), None for a classical controller."""
@@ -91,6 +95,7 @@ class RunSpec:
     loads: tuple[tuple[float, float | None], ...] | None = None
     descent_height_m: float | None = None
     sensor_set: str = "extended"  # or "paper": no pad force sensor, no accelerometer
+    plant_overrides: Mapping[str, Any] = field(default_factory=dict)
     controller_digest: str | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -109,6 +114,7 @@ class RunSpec:
                 f"RunSpec.randomize must be one of {', '.join(map(repr, RANDOMIZE))}, got {shown(self.randomize)}"
             )
         set_(self, "overrides", _overrides(self.overrides))
+        set_(self, "plant_overrides", _overrides(self.plant_overrides, self.rig_params(), "RunSpec.plant_overrides"))
         set_(self, "gains", _named_floats("RunSpec.gains", self.gains, [f.name for f in fields(PIDGains)]))
         if self.gains and self.controller not in (*BASELINES, RETUNED_PID):
             raise ValueError(f"RunSpec.gains: controller {shown(self.controller)} has no PID gains to replace")
@@ -120,6 +126,7 @@ class RunSpec:
         set_(self, "imperfections", _named_flags(self.imperfections, list(IMPERFECTION_NAMES)))
         flags, sensors = self.imperfection_flags(), self.sensor_set
         check_parameters_used(self.rig_params(), flags, sensors, SENSOR_SETS[sensors], "RunSpec.overrides")
+        check_parameters_used(self.plant_params(), flags, sensors, SENSOR_SETS[sensors], "RunSpec.plant_overrides")
         set_(self, "control_period_us", validate.positive("RunSpec.control_period_us", self.control_period_us, "us"))
         set_(self, "physics_step_us", validate.positive("RunSpec.physics_step_us", self.physics_step_us, "us"))
         check_control_period(self.control_period_s, check_physics_step(self.physics_step_s))
@@ -143,6 +150,7 @@ class RunSpec:
         return (
             out
             | {"overrides": dict(self.overrides), "gains": dict(self.gains)}
+            | ({"plant_overrides": dict(self.plant_overrides)} if self.plant_overrides else {})
             | {"imperfections": dict(self.imperfections)}
         )
 
@@ -188,7 +196,7 @@ class RunSpec:
         """Equal for specs that run as rigs of one batch, on one compiled model: equal but in
         :data:`PER_RIG_FIELDS` and in the parameters an episode sets
         (:data:`~microg_env.sim.model.EPISODE_PARAMETERS`, which go with each rig's schedule)."""
-        key = {k: v for k, v in self.as_dict().items() if k not in PER_RIG_FIELDS}
+        key = {k: v for k, v in self.as_dict().items() if k not in (*PER_RIG_FIELDS, "plant_overrides")}
         built = apply_imperfections(self.rig_schedule().rig_params(self.model_params()), self.imperfection_flags())
         paths = parameter_paths(built)
         key["overrides"] = {path: paths[path] for path in sorted(paths) if path not in EPISODE_PARAMETERS}
@@ -233,20 +241,29 @@ class RunSpec:
 
     def rig_schedule(self) -> Scenario:
         """The schedule as one rig of a batch runs it: :meth:`scenario_schedule` carrying this spec's
-        overrides of the parameters an episode sets (the schedule's own take precedence, as in
-        :meth:`env_kwargs`' environment)."""
+        overrides (the plant's included) of the parameters an episode sets (the schedule's own take
+        precedence, as in :meth:`env_kwargs`' environment)."""
         schedule = self.scenario_schedule()
-        mine = {path: value for path, value in self.overrides.items() if path in EPISODE_PARAMETERS}
+        overrides = self._plant_overrides()
+        mine = {path: value for path, value in overrides.items() if path in EPISODE_PARAMETERS}
         return dataclasses.replace(schedule, overrides=mine | dict(schedule.overrides)) if mine else schedule
 
     def rig_params(self) -> RigParams:
-        """The nominal rig: the paper's with this spec's overrides."""
+        """The nominal rig, as the controller assumes it: the paper's with this spec's overrides."""
         return with_overrides(RigParams(), self.overrides)
 
+    def plant_params(self) -> RigParams:
+        """The rig that runs: :meth:`rig_params` with this spec's plant overrides."""
+        return with_overrides(RigParams(), self._plant_overrides())
+
+    def _plant_overrides(self) -> dict[str, Any]:
+        return dict(self.overrides) | dict(self.plant_overrides)
+
     def model_params(self) -> RigParams:
-        """The rig of a batch's compiled model: the paper's with this spec's overrides but those of
-        the parameters an episode sets (:meth:`rig_schedule` carries them)."""
-        return with_overrides(RigParams(), {p: v for p, v in self.overrides.items() if p not in EPISODE_PARAMETERS})
+        """The rig of a batch's compiled model: the paper's with this spec's overrides (the plant's
+        included) but those of the parameters an episode sets (:meth:`rig_schedule` carries them)."""
+        overrides = self._plant_overrides()
+        return with_overrides(RigParams(), {p: v for p, v in overrides.items() if p not in EPISODE_PARAMETERS})
 
     def imperfection_flags(self) -> Imperfections:
         return Imperfections(**self.imperfections)
@@ -260,7 +277,7 @@ class RunSpec:
             "imperfections": self.imperfection_flags(),
             "domain_randomization": RANDOMIZE[self.randomize],
             "sensor_set": self.sensor_set,
-            "params": self.rig_params(),
+            "params": self.plant_params(),
         }
 
     def batch_kwargs(self) -> dict[str, Any]:
@@ -271,13 +288,15 @@ class RunSpec:
         return kwargs
 
 
-def _overrides(values: object) -> dict[str, Any]:
+def _overrides(values: object, base: RigParams | None = None, name: str = "RunSpec.overrides") -> dict[str, Any]:
     """Dotted rig parameters, each value of its default's type (so 100 and 100.0 hash alike); a
-    value equal to the default is dropped (the same run hashes alike however it is written)."""
-    defaults = parameter_paths()
-    typed = typed_overrides("RunSpec.overrides", values)
-    out = {path: value for path, value in typed.items() if value != defaults[path]}
-    with_overrides(RigParams(), out)  # the parameters' own checks name a bad value now
+    value equal to ``base``'s (default: the paper's rig) is dropped (the same run hashes alike
+    however it is written)."""
+    base = RigParams() if base is None else base
+    defaults = parameter_paths(base)
+    typed = typed_overrides(name, values)
+    out = {path: value for path, value in sorted(typed.items()) if value != defaults[path]}
+    with_overrides(base, out)  # the parameters' own checks name a bad value now
     return out
 
 
@@ -316,7 +335,7 @@ def _loads(values: object) -> tuple[tuple[float, float | None], ...]:
 
 
 #: The RunSpec fields that map names to values: a campaign key reaches an entry as FIELD.NAME.
-NESTED_FIELDS = ("overrides", "gains", "imperfections")
+NESTED_FIELDS = ("overrides", "plant_overrides", "gains", "imperfections")
 
 
 @functools.cache
@@ -342,6 +361,6 @@ def spec_entry(key: str) -> tuple[str, ...]:
     if key in _rig_parameters():
         return ("overrides", key)
     raise ValueError(
-        f"{shown(key)} is neither a run spec field, gains.NAME, imperfections.NAME nor a rig parameter "
-        "(dotted path, e.g. qzs.guide_friction_n)"
+        f"{shown(key)} is neither a run spec field, gains.NAME, imperfections.NAME, plant_overrides.NAME nor a "
+        "rig parameter (dotted path, e.g. qzs.guide_friction_n)"
     )

@@ -301,6 +301,7 @@ REPORTED = {
     },
     "landing-monte-carlo": {"sweep": {"controller": ["pid", "feedforward"]}},
     "sensitivity": {"samples": MORRIS["samples"]},
+    "controller-sensitivity": {"samples": MORRIS["samples"], "sweep": {"controller": ["pid", "feedforward"]}},
     "transmission": {"sweep": {"screw.transmission_stiffness_n_per_m": [1e8, float("inf")]}},
 }
 

@@ -75,7 +75,7 @@ def test_parallel_workers_give_the_same_results():
 
 
 def test_a_comparison_runs_at_the_physics_step_it_is_given():
-    """``physics_step_s`` reaches every run (benchmarks/convergence_held_out.py compares two steps)."""
+    """``physics_step_s`` reaches every run (benchmarks/convergence_comparison.py compares two steps)."""
     runs = [compare(["pid"], ["condition-2"], seeds=1, duration_s=0.3, physics_step_s=step) for step in (1e-4, 5e-5)]
     assert [run.physics_step_s for run in runs] == [1e-4, 5e-5]
     free_fall = [run.results[0].values["free_fall_excursion_m"] for run in runs]

@@ -61,6 +61,7 @@ def test_spec_hash_is_content_only_and_stable_across_processes():
         spec.replace(loads=((0.3, None),)),
         spec.replace(descent_height_m=0.05),
         spec.replace(scenario="condition-3"),
+        spec.replace(plant_overrides={"servo.cogging_torque_n_m": 0.4}),
     ]
     assert len({s.hash for s in changed} | {spec.hash}) == len(changed) + 1
     code = (
@@ -71,9 +72,14 @@ def test_spec_hash_is_content_only_and_stable_across_processes():
     assert other.stdout.strip() == spec.hash
     # A field added later is left out of the identity at its default: older specs keep their hashes.
     assert "sensor_set" not in spec.as_dict()
+    assert "plant_overrides" not in spec.as_dict()
+    # a plant override equal to the assumed rig's value is no difference: dropped, the same run
+    assert spec.replace(plant_overrides={"servo.speed_loop_gain_hz": 150}) == spec
+    unknown = spec.replace(plant_overrides={"servo.cogging_torque_n_m": 0.4})
+    assert RunSpec.from_dict(json.loads(json.dumps(unknown.as_dict()))) == unknown
     paper = spec.replace(sensor_set="paper")
     assert RunSpec.from_dict(json.loads(json.dumps(paper.as_dict()))) == paper
-    for bad in ({"randomize": 1}, {"randomize": "drive"}, {"sensor_set": "ruler"}):
+    for bad in ({"randomize": 1}, {"randomize": "drive"}, {"sensor_set": "ruler"}, {"plant_overrides": {"x": 1}}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             spec.replace(**bad)
 
@@ -127,6 +133,30 @@ def test_run_and_run_many_give_the_same_runs_and_a_bad_run_is_recorded():
         assert together.spec is spec
     gains_differ = results[0].metrics.flexible_unit_excursion_free_fall_m
     assert gains_differ != results[2].metrics.flexible_unit_excursion_free_fall_m
+
+
+def test_a_plant_override_changes_the_plant_and_not_what_the_controller_assumes():
+    """``plant_overrides``: the rig that runs is the overridden one, the controller assumes the
+    nominal. The PID assumes nothing, so its run is the plain override's to the last bit; the
+    feed-forward, which models the drive's cogging, differs from one told the cogging; single env
+    and batch agree, and the reference is the true plant's."""
+    # one parameter an episode sets (each rig's), one of the compiled model (the batch's)
+    unknown_rig = {"servo.cogging_torque_n_m": 0.45, "qzs.residual_stiffness_n_per_m": -20000.0}
+    for controller in ("pid", "feedforward"):
+        unknown = RunSpec(**SHORT, controller=controller, seed=5, plant_overrides=unknown_rig)
+        told = unknown.replace(overrides=unknown_rig, plant_overrides={})
+        assert unknown.batch_key == told.batch_key != RunSpec(**SHORT, controller=controller, seed=5).batch_key
+        alone, known, (together,) = run(unknown), run(told), run_all([unknown])
+        assert alone.metrics.as_dict() == together.metrics.as_dict()
+        assert np.array_equal(alone.reference.foot_height_m, known.reference.foot_height_m)  # the plant's
+        same = np.array_equal(alone.trajectory.x_m, known.trajectory.x_m)
+        assert same == (controller == "pid"), controller
+    nominal = run(RunSpec(**SHORT, controller="pid", seed=5))
+    assert not np.array_equal(nominal.trajectory.x_m, alone.trajectory.x_m)  # the plant did change
+    # the oracle is told the plant, whichever way it differs: the same run as told it
+    oracle = RunSpec(**SHORT, controller="oracle", seed=5, plant_overrides=unknown_rig)
+    told, (unknown,) = run(oracle.replace(overrides=unknown_rig, plant_overrides={})), run_all([oracle])
+    assert unknown.metrics.as_dict() == told.metrics.as_dict()
 
 
 def test_accelerometer_bias_reads_straight_into_the_accelerometers_descent():
@@ -379,11 +409,14 @@ def test_pid_retuned_is_tuned_once_per_rig_and_schedule_not_per_batch(monkeypatc
         RunSpec("condition-3", "pid-retuned", 1, duration_s=0.2),
         RunSpec("condition-1", "pid-retuned", 2, duration_s=0.2),
         RunSpec("condition-1", "pid-retuned", 1, {"lander.mass_kg": 600.0}, duration_s=0.2),
+        # a plant the controller does not know is tuned on what it assumes: condition 1's gains
+        RunSpec("condition-1", "pid-retuned", 1, duration_s=0.2, plant_overrides={"lander.mass_kg": 600.0}),
     ]
     assert len({spec.batch_key for spec in specs}) == 1
     results = dict(item for batch in tuning.run_with_retuning(specs) for item in batch)
     assert [spec.scenario for spec in tuned] == ["condition-1", "condition-3", "condition-1"]
-    assert [results[i].tuned_gains["ki_per_s2"] for i in range(4)] == [100.0, 200.0, 100.0, 300.0]
+    assert all(not spec.plant_overrides for spec in tuned)
+    assert [results[i].tuned_gains["ki_per_s2"] for i in range(5)] == [100.0, 200.0, 100.0, 300.0, 100.0]
 
 
 def test_a_batch_that_fails_midway_fails_only_its_unfinished_runs(monkeypatch):

@@ -4,6 +4,7 @@ page's run counts by run, not by design point."""
 
 from __future__ import annotations
 
+import numpy as np
 import pyarrow as pa
 import pytest
 
@@ -179,3 +180,80 @@ def test_the_sensitivity_page_gives_mu_star_with_its_interval_and_sigma(tmp_path
     for section in _sections(page).values():
         row = next(line for line in section.splitlines() if line.startswith("| x at the collision"))
         assert f"`{GAIN}`: 150 ± 0, sigma 0; `{FRICTION}`: 0 ± 0, sigma 0 |" in row
+
+
+# -- controller-sensitivity ------------------------------------------------------------------------
+
+PLANT_GAIN, PLANT_FRICTION = f"plant_overrides.{GAIN}", f"plant_overrides.{FRICTION}"
+RANKING = MORRIS | {
+    "base": {"duration_s": 0.3},
+    "sweep": {"controller": ["pid", "feedforward"], "scenario": ["condition-1", "condition-2"]},
+    "samples": MORRIS["samples"]
+    | {"draw": {PLANT_GAIN: {"uniform": [50.0, 200.0]}, PLANT_FRICTION: {"uniform": [0.05, 0.2]}}},
+    "report": "controller-sensitivity",
+}
+
+
+def _ranking_table(campaign: Campaign, lose: Run | None = None) -> pa.Table:
+    """x at the collision, condition 1 / condition 2: 2 / 4 µm for the PID, g / 3 g µm for the
+    feed-forward, g = 1 + gain / 100 Hz. At a design point their means are 3 and 2 g µm, and the
+    ratio of the means 2 g / 3, linear in the gain (1.0 over its 50 to 200 Hz), the friction no
+    part (the mean of the ratios, 0.625 g, or condition 1's alone, g / 2, differ). x in free fall
+    1 µm for both. ``lose``: a run that ended at a stroke limit."""
+    rows = []
+    for run in campaign.runs():
+        weight = 1.0 if run.spec.scenario == "condition-1" else (2.0 if run.spec.controller == "pid" else 3.0)
+        x = 2e-6 if run.spec.controller == "pid" else 1e-6 * (1.0 + run.columns[PLANT_GAIN] / 100.0)
+        lost = "stroke_limit" if lose is not None and run.spec == lose.spec else None
+        rows.append(_row(run, True, termination_reason=lost, **{COLLISION: weight * x, FREE_FALL: 1e-6}))
+    return pa.Table.from_pylist(rows)
+
+
+@pytest.mark.slow
+def test_the_controller_sensitivity_page_gives_each_ratios_range_and_its_mu_star(tmp_path):
+    """The stand-in's ratio of means moves linearly with the gain alone (1.0 over its range): mu*
+    1.0 with no spread, the friction's 0, points below 1 where the ratio is; the free-fall ratio is
+    1 everywhere. A lost run takes its design point (both schedules' mean) out and says so."""
+    campaign = Campaign.from_dict(RANKING)
+    page = write_study(campaign, _ranking_table(campaign), tmp_path).read_text()
+    points = campaign.sample_points()
+    ratios = np.array([2.0 * (1.0 + p[PLANT_GAIN] / 100.0) / 3.0 for p in points])
+    spread = f"{np.median(ratios):.3g}× ({ratios.min():.3g} to {ratios.max():.3g})"
+    own, row = (line for line in page.splitlines() if line.startswith("| `feedforward` | x at the collision"))
+    assert "`speed_loop_gain_hz`: 3 ± 0, sigma 0; `guide_friction_n`: 0 ± 0, sigma 0 |" in own  # in µm
+    assert f"| {spread} | {np.mean(ratios < 1.0):.0%} | 3 of 3 |" in row
+    assert "`speed_loop_gain_hz`: 1.00 ± 0.00, sigma 0.00; `guide_friction_n`: 0.00 ± 0.00, sigma 0.00 |" in row
+    _, free = (line for line in page.splitlines() if line.startswith("| `feedforward` | x in free fall"))
+    assert "| 1× (1 to 1) | 0% |" in free
+    runs = sum(run.spec.controller == "pid" for run in campaign.runs())  # a repeated point runs once
+    assert runs < 2 * len(points)
+    assert f"| `pid` | x at the collision | 3 (3 to 3) | 0 of {runs} |" in page
+    assert (tmp_path / "controller_sensitivity.png").is_file()
+    lost = next(run for run in campaign.runs() if run.spec.controller == "feedforward")
+    page = write_study(campaign, _ranking_table(campaign, lose=lost), tmp_path).read_text()
+    own, row = (line for line in page.splitlines() if line.startswith("| `feedforward` | x at the collision"))
+    assert f"| 1 of {runs} |" in own
+    at = [all(p[k] == lost.columns[k] for k in (PLANT_GAIN, PLANT_FRICTION)) for p in points]
+    kept = sum(not any(at[i : i + 3]) for i in range(0, len(points), 3))  # 3 points a trajectory
+    assert 0 < kept < 3
+    assert f"| {kept} of 3 |" in row  # a trajectory with the lost run's point is not analysed
+
+
+def test_the_controller_sensitivity_page_needs_controllers_to_compare_and_pools_nothing_else():
+    with pytest.raises(ValueError, match="compares controllers"):
+        Campaign.from_dict(RANKING | {"sweep": {"controller": ["pid"], "scenario": ["condition-1"]}})
+    periods = {"controller": ["pid", "feedforward"], "control_period_us": [500, 1000]}
+    with pytest.raises(ValueError, match="not 'control_period_us'"):
+        Campaign.from_dict(RANKING | {"sweep": periods})
+
+
+def test_a_sensitivity_page_gives_the_value_the_controllers_assume():
+    """The base's overrides (or a rig file's) are what the controllers assume, not params.py's."""
+    campaign = Campaign.from_dict(RANKING | {"base": {"duration_s": 0.3, "overrides": {GAIN: 120.0}}})
+    assert f"| `{PLANT_GAIN}` | 50 to 200 | 120 |" in sensitivity.ranges_table(campaign)
+    assert f"| `{PLANT_FRICTION}` | 0.05 to 0.2 | 0.2 |" in sensitivity.ranges_table(campaign)  # params.py's
+    drawn = Campaign.from_dict(MORRIS)  # not the design's first point
+    assert sensitivity.ranges_table(drawn)[2:] == [
+        f"| `{GAIN}` | 50 to 200 | 100 |",
+        f"| `{FRICTION}` | 0.05 to 0.2 | 0.2 |",
+    ]

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from microg_env.experiments.studies import (
+    controller_sensitivity,
     fifty_gram_floor,
     landing_monte_carlo,
     period_bandwidth,
@@ -26,6 +27,7 @@ STUDIES = {
     "fifty-gram-floor": fifty_gram_floor,
     "landing-monte-carlo": landing_monte_carlo,
     "sensitivity": sensitivity,
+    "controller-sensitivity": controller_sensitivity,
     "transmission": transmission,
 }
 #: The page of a campaign folder.

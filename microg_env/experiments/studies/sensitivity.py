@@ -17,7 +17,7 @@ import pyarrow.compute as pc
 from microg_env.analysis.metrics import COMPARED_WINDOW
 from microg_env.analysis.plots import figure_class, save_figure
 from microg_env.experiments.studies.groups import finite, markdown_table, page_header, successes, with_stage
-from microg_env.params import RigParams, parameter_paths
+from microg_env.params import RigParams, parameter_paths, with_overrides
 from microg_env.rollout.spec import spec_entry
 from microg_env.validate import shown
 
@@ -73,11 +73,13 @@ def check(campaign) -> None:
     method = samples.get("method", "random") if samples else None
     if method != "morris":
         got = "no samples" if method is None else f"{method} samples"
-        raise ValueError(f"report 'sensitivity' reads a Morris design (samples: {{method: morris, ...}}), got {got}")
-    others = [key for key in samples["draw"] if spec_entry(key)[0] != "overrides"]
+        raise ValueError(
+            f"report {shown(campaign.report)} reads a Morris design (samples: {{method: morris, ...}}), got {got}"
+        )
+    others = [key for key in samples["draw"] if spec_entry(key)[0] not in ("overrides", "plant_overrides")]
     if others:
         raise ValueError(
-            f"report 'sensitivity' moves rig parameters only (its page gives each one's assumed value); "
+            f"report {shown(campaign.report)} moves rig parameters only (its page gives each one's assumed value); "
             f"{shown(others[0])} is not one"
         )
 
@@ -93,7 +95,8 @@ def _cases(campaign, table: pa.Table) -> tuple[dict[str, dict[str, list[list[str
     missing = [h for h in runs if h not in listed]
     if missing:
         raise ValueError(
-            f"report 'sensitivity': the results table has no row of {len(missing)} of the design's {len(runs)} runs "
+            f"report {shown(campaign.report)}: the results table has no row of {len(missing)} of the design's "
+            f"{len(runs)} runs "
             f"(spec hash {missing[0]} first): it is not this campaign's table"
         )
     stored = {row["spec_hash"]: row for row in _quantities(successes(table)).to_pylist()}
@@ -108,7 +111,6 @@ def render(campaign, table: pa.Table, folder: Path) -> list[str]:
     draw = campaign.samples["draw"]
     keys, levels = list(draw), campaign.samples.get("levels", 4)
     cases, stored = _cases(campaign, table)
-    assumed = parameter_paths(RigParams())
     seeds = campaign.seeds
     lines = page_header(campaign, table, folder)
     intro = INTRO.format(
@@ -119,12 +121,7 @@ def render(campaign, table: pa.Table, folder: Path) -> list[str]:
         seeds=ONE_SEED if len(seeds) == 1 else SEEDS.format(count=len(seeds), seeds=", ".join(map(str, seeds))),
     )
     lines += [*intro.splitlines(), ""]
-    rows = []
-    for key, distribution in draw.items():
-        ((kind, (low, high)),) = distribution.items()
-        scale = " (log grid)" if kind == "loguniform" else ""
-        rows.append([f"`{key}`", f"{low:g} to {high:g}{scale}", f"{assumed[spec_entry(key)[1]]:g}"])
-    lines += markdown_table(["assumption", "range", "as assumed (params.py)"], rows)
+    lines += ranges_table(campaign)
     ranking: dict[tuple[str, str], np.ndarray] = {}
     section = "##" if len(cases) == 1 else "###"
     for case, runs_of in cases.items():
@@ -133,6 +130,22 @@ def render(campaign, table: pa.Table, folder: Path) -> list[str]:
         lines += _case(campaign, case, runs_of, stored, section, ranking)
     _draw(ranking, keys, [_series(case, scenario) for case, runs_of in cases.items() for scenario in runs_of], folder)
     return [*lines, "", "![Morris mu* of each headline quantity, by assumption and scenario](sensitivity.png)", ""]
+
+
+def ranges_table(campaign) -> list[str]:
+    """The design's assumptions: each one's range and the value every controller assumes (the
+    paper's rig with the campaign's rig file and base overrides)."""
+    _, _, specs = campaign.sample_runs()[0]
+    drawn = {entry[1] for entry in map(spec_entry, campaign.samples["draw"]) if entry[0] == "overrides"}
+    assumed = parameter_paths(
+        with_overrides(RigParams(), {p: v for p, v in specs[0].overrides.items() if p not in drawn})
+    )
+    rows = []
+    for key, distribution in campaign.samples["draw"].items():
+        ((kind, (low, high)),) = distribution.items()
+        scale = " (log grid)" if kind == "loguniform" else ""
+        rows.append([f"`{key}`", f"{low:g} to {high:g}{scale}", f"{assumed[spec_entry(key)[1]]:g}"])
+    return markdown_table(["assumption", "range", "as assumed"], rows)
 
 
 def _series(case: str, scenario: str) -> str:

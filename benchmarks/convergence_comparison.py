@@ -1,15 +1,18 @@
-"""Convergence of the headline comparison's numbers with the physics step, on held-out randomised plants.
+"""Convergence of a comparison's numbers with the physics step: the README's or the nominal plant's.
 
-``benchmarks/convergence.py`` checks every metric on the nominal plant. This runs the comparison the
-README quotes (``microg compare``: held-out schedules, plants and drives drawn 1.5 times wider than
-training's, every sensor, the same seeds for every controller) at the default physics step and at a
-step four times finer, and prints for each controller and headline quantity the mean at both steps,
-the change of the mean, the largest change of one episode, and the paired ratio to the reference
-(mean over mean, as the comparison reports it) at both steps (docs/model.md, "Drive scheme").
+``benchmarks/convergence.py`` checks every metric of single episodes on the nominal plant. This runs
+a comparison (``microg compare``, the same seeds for every controller, every sensor) at the default
+physics step and at a step four times finer: by default the one the README quotes (held-out
+schedules, plants and drives drawn 1.5 times wider than training's); with ``--randomize none
+--scenarios condition-1,condition-2,condition-3,heavy-second,light-long --seeds 5`` the nominal
+plant's (docs/controllers.md's "nominal plant" comparison). It prints for each controller and
+headline quantity the mean at both steps, the change of the mean, the largest change of one
+episode, and the paired ratio to the reference (mean over mean, as the comparison reports it) at
+both steps (docs/model.md, "Drive scheme").
 
-Usage: ``python benchmarks/convergence_held_out.py [--controllers pid,adaptive-dither,...]
-[--reference adaptive-dither] [--scenarios heavy-second,...] [--seeds 2] [--steps-us 100 25]
-[--workers 2]``.
+Usage: ``python benchmarks/convergence_comparison.py [--controllers pid,adaptive-dither,...]
+[--reference adaptive-dither] [--scenarios heavy-second,...] [--seeds 2] [--randomize wider|none]
+[--steps-us 100 25] [--workers 2]``.
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ from microg_env.scenarios import HELD_OUT
 #: The controllers the README's table names, and the quantities it reports.
 CONTROLLERS = "pid,feedforward,adaptive,adaptive-dither,oracle,residual-sac-setpoint"
 HEADLINE = ("collision_excursion_m", "free_fall_excursion_m", "compensation_error")
+#: ``--randomize``: the comparison's plants.
+RANDOMIZE = {"wider": "wider", "none": False}
 
 
 def values(comparison, controller: str, quantity: str) -> np.ndarray:
@@ -39,6 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--reference", default="adaptive-dither")
     parser.add_argument("--scenarios", default=",".join(HELD_OUT))
     parser.add_argument("--seeds", type=int, default=2, help="seeds per schedule (default 2)")
+    parser.add_argument("--randomize", choices=RANDOMIZE, default="wider", help="the plants (default: wider)")
     parser.add_argument("--steps-us", type=float, nargs=2, default=[100.0, 25.0])
     parser.add_argument("--duration", type=float, default=None, help="cap on each episode (default: its own)")
     parser.add_argument("--workers", type=int, default=2)
@@ -51,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
             controllers,
             args.scenarios.split(","),
             seeds=args.seeds,
-            randomize="wider",
+            randomize=RANDOMIZE[args.randomize],
             duration_s=args.duration,
             workers=args.workers,
             reference=args.reference,
@@ -61,7 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     ]
     coarse, fine = args.steps_us
     episodes = len(runs[0].runs(args.reference))
-    print(f"{episodes} held-out episodes (wider plants and drives), physics step {coarse:g} and {fine:g} us")
+    plants = "nominal plant" if args.randomize == "none" else "plants and drives drawn 1.5 times wider"
+    print(f"{episodes} episodes ({plants}), physics step {coarse:g} and {fine:g} us")
     print(
         f"| controller | quantity | mean at {coarse:g} us | at {fine:g} us | change of the mean | largest change,"
         f" one episode | / {args.reference} at {coarse:g} us | at {fine:g} us |"
