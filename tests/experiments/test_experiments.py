@@ -27,6 +27,7 @@ from microg_env.controllers.registry import shipped_policy_folder
 from microg_env.experiments.campaign import Campaign
 from microg_env.experiments.store import ResultStore, result_row
 from microg_env.params import PHYSICS_STEP_S
+from microg_env.rollout import runner
 from microg_env.rollout.runner import run, run_all, run_each
 from microg_env.rollout.spec import RunSpec
 
@@ -140,8 +141,13 @@ def test_a_plant_override_changes_the_plant_and_not_what_the_controller_assumes(
     nominal. The PID assumes nothing, so its run is the plain override's to the last bit; the
     feed-forward, which models the drive's cogging, differs from one told the cogging; single env
     and batch agree, and the reference is the true plant's."""
-    # one parameter an episode sets (each rig's), one of the compiled model (the batch's)
-    unknown_rig = {"servo.cogging_torque_n_m": 0.45, "qzs.residual_stiffness_n_per_m": -20000.0}
+    # parameters an episode sets (each rig's; the lander's mass moves the ideal reference's descent)
+    # and one of the compiled model (the batch's)
+    unknown_rig = {
+        "servo.cogging_torque_n_m": 0.45,
+        "lander.mass_kg": 600.0,
+        "qzs.residual_stiffness_n_per_m": -20000.0,
+    }
     for controller in ("pid", "feedforward"):
         unknown = RunSpec(**SHORT, controller=controller, seed=5, plant_overrides=unknown_rig)
         told = unknown.replace(overrides=unknown_rig, plant_overrides={})
@@ -149,6 +155,8 @@ def test_a_plant_override_changes_the_plant_and_not_what_the_controller_assumes(
         alone, known, (together,) = run(unknown), run(told), run_all([unknown])
         assert alone.metrics.as_dict() == together.metrics.as_dict()
         assert np.array_equal(alone.reference.foot_height_m, known.reference.foot_height_m)  # the plant's
+        # run_each on workers plans each reference before the runs: the plant's too
+        assert runner._planned_reference(unknown)[0] == runner._planned_reference(told)[0]
         same = np.array_equal(alone.trajectory.x_m, known.trajectory.x_m)
         assert same == (controller == "pid"), controller
     nominal = run(RunSpec(**SHORT, controller="pid", seed=5))
