@@ -150,7 +150,6 @@ class RunSpec:
         return (
             out
             | {"overrides": dict(self.overrides), "gains": dict(self.gains)}
-            | ({"plant_overrides": dict(self.plant_overrides)} if self.plant_overrides else {})
             | {"imperfections": dict(self.imperfections)}
         )
 

@@ -67,10 +67,10 @@ def _means(campaign, table: pa.Table) -> tuple[dict[str, dict[str, np.ndarray]],
     """Each controller's quantity at each design point ({controller: {column: (points,) in µm}}, NaN
     where a run of the point was lost), and each controller's (lost, total) runs, a run that the
     design repeats counted once."""
-    _, stored = sensitivity._cases(campaign, table)  # refuses a table that is not the campaign's
+    design, stored = sensitivity.design_rows(campaign, table)
     hashes: dict[str, list[list[str]]] = {}  # per controller: per schedule and seed, each point's run
-    for point, _, specs in campaign.sample_runs():
-        hashes.setdefault(point["controller"], []).append([spec.hash for spec in specs])
+    for point, runs, _ in design:
+        hashes.setdefault(point["controller"], []).append(runs)
     means, lost = {}, {}
     for controller, runs in hashes.items():
         rows = [[stored.get(h) for h in per_run] for per_run in runs]
@@ -79,7 +79,7 @@ def _means(campaign, table: pa.Table) -> tuple[dict[str, dict[str, np.ndarray]],
         lost[controller] = (int(sum(by_run.values())), len(by_run))
         means[controller] = {}
         for _, column in QUANTITIES:
-            values = np.array([[sensitivity._value(row, column) for row in r] for r in rows])
+            values = np.array([[sensitivity.stored_value(row, column) for row in r] for r in rows])
             means[controller][column] = np.where(failed, np.nan, values).mean(axis=0) * 1e6
     return means, lost
 

@@ -84,11 +84,11 @@ def check(campaign) -> None:
         )
 
 
-def _cases(campaign, table: pa.Table) -> tuple[dict[str, dict[str, list[list[str]]]], dict[str, dict]]:
-    """The design's runs by identity (spec hash): {a combination of the swept keys but the
-    scenario, as the page names it ("" if the campaign has one): {scenario: [for each seed, the
-    spec hash of each design point in order]}}, and the completed runs' rows by spec hash. A
-    design run with no row at all is refused: the table is not of this campaign."""
+def design_rows(campaign, table: pa.Table) -> tuple[list[tuple[dict, list[str], str]], dict[str, dict]]:
+    """The design's runs by identity (spec hash): for each grid point and seed, (the point, the spec
+    hash of each design point in order, its scenario); and the completed runs' rows by spec hash,
+    with the page's quantities. A design run with no row at all is refused: the table is not of
+    this campaign."""
     design = [(point, [spec.hash for spec in specs], specs[0].scenario) for point, _, specs in campaign.sample_runs()]
     runs = list(dict.fromkeys(h for _, hashes, _ in design for h in hashes))  # a repeated point runs once
     listed = set(table["spec_hash"].to_pylist())
@@ -99,18 +99,25 @@ def _cases(campaign, table: pa.Table) -> tuple[dict[str, dict[str, list[list[str
             f"{len(runs)} runs "
             f"(spec hash {missing[0]} first): it is not this campaign's table"
         )
-    stored = {row["spec_hash"]: row for row in _quantities(successes(table)).to_pylist()}
+    return design, {row["spec_hash"]: row for row in _quantities(successes(table)).to_pylist()}
+
+
+def _cases(design: list[tuple[dict, list[str], str]]) -> dict[str, dict[str, list[list[str]]]]:
+    """:func:`design_rows`' runs by case: {a combination of the swept keys but the scenario, as the
+    page names it ("" if the campaign has one): {scenario: [for each seed, the spec hash of each
+    design point in order]}}."""
     cases: dict[str, dict[str, list[list[str]]]] = {}
     for point, hashes, scenario in design:
         case = ", ".join(f"`{key}` = {value}" for key, value in point.items() if key != "scenario")
         cases.setdefault(case, {}).setdefault(scenario, []).append(hashes)
-    return cases, stored
+    return cases
 
 
 def render(campaign, table: pa.Table, folder: Path) -> list[str]:
     draw = campaign.samples["draw"]
     keys, levels = list(draw), campaign.samples.get("levels", 4)
-    cases, stored = _cases(campaign, table)
+    design, stored = design_rows(campaign, table)
+    cases = _cases(design)
     seeds = campaign.seeds
     lines = page_header(campaign, table, folder)
     intro = INTRO.format(
@@ -135,11 +142,7 @@ def render(campaign, table: pa.Table, folder: Path) -> list[str]:
 def ranges_table(campaign) -> list[str]:
     """The design's assumptions: each one's range and the value every controller assumes (the
     paper's rig with the campaign's rig file and base overrides)."""
-    _, _, specs = campaign.sample_runs()[0]
-    drawn = {entry[1] for entry in map(spec_entry, campaign.samples["draw"]) if entry[0] == "overrides"}
-    assumed = parameter_paths(
-        with_overrides(RigParams(), {p: v for p, v in specs[0].overrides.items() if p not in drawn})
-    )
+    assumed = parameter_paths(with_overrides(RigParams(), campaign.base.get("overrides", {})))
     rows = []
     for key, distribution in campaign.samples["draw"].items():
         ((kind, (low, high)),) = distribution.items()
@@ -156,7 +159,8 @@ def _series(case: str, scenario: str) -> str:
 def _case(
     campaign, case: str, runs_of: dict[str, list[list[str]]], stored: dict[str, dict], section: str, ranking: dict
 ) -> list[str]:
-    """One combination's sections (``runs_of`` and ``stored`` as :func:`_cases` gives them): its
+    """One combination's sections (``runs_of`` as :func:`_cases` and ``stored`` as :func:`design_rows`
+    give them): its
     lost runs and its headline numbers, each design point's quantity the mean over the seeds; each
     quantity's mu* goes to ``ranking`` by (quantity, :func:`_series`)."""
     from SALib.analyze import morris
@@ -179,7 +183,8 @@ def _case(
     rows = []
     for label, unit_name, scale, column in QUANTITIES:
         for scenario, per_seed in runs_of.items():
-            y = np.array([[_value(stored.get(h), column) * scale for h in hashes] for hashes in per_seed]).mean(axis=0)
+            y = np.array([[stored_value(stored.get(h), column) for h in hashes] for hashes in per_seed])
+            y = y.mean(axis=0) * scale
             whole = np.isfinite(y).reshape(-1, steps).all(axis=1)  # trajectories that reached it at every point
             if whole.sum() < 2:
                 continue  # a stage this scenario does not have, or too few trajectories reached it
@@ -216,7 +221,7 @@ def _case(
     return [*lines, *QUANTITIES_INTRO.splitlines(), "", *markdown_table(header, rows)]
 
 
-def _value(row: dict | None, column: str) -> float:
+def stored_value(row: dict | None, column: str) -> float:
     """A quantity of a stored run, NaN where the run is missing or did not reach it."""
     return math.nan if row is None or row[column] is None else float(row[column])
 
