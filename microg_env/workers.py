@@ -31,6 +31,15 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.connection import Connection
 
+
+def usable_cores() -> int:
+    """The cores this process may run on: its CPU affinity where the platform has one (a container's
+    or a test worker's share), else every core. What "0: every core" means for threads and workers."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 #: What the fork server imports before it forks any worker (the runner brings the environments,
 #: the controllers and MuJoCo).
 PRELOAD = ("microg_env.rollout.runner",)

@@ -65,11 +65,26 @@ def pytest_configure(config: pytest.Config) -> None:
     outside the tree (the installed copy, which commands run from other folders import). On a fresh
     clone every process that found a cache empty compiled the kernels itself, about 13 CPU-seconds
     each: the workers, and the commands, Ray workers and process pools the tests start."""
-    if not getattr(config.option, "numprocesses", None) or hasattr(config, "workerinput"):
+    if hasattr(config, "workerinput"):
+        _pin_worker(config.workerinput)
+        return
+    if not getattr(config.option, "numprocesses", None):
         return
     exec(WARM_UP, {})
     with tempfile.TemporaryDirectory() as folder:
         subprocess.run([sys.executable, "-c", WARM_UP], cwd=folder, check=True, capture_output=True, timeout=600)
+
+
+def _pin_worker(workerinput: dict) -> None:
+    """A pytest-xdist worker kept to one core of the machine's, its own where there are enough: the
+    threads a test starts (MuJoCo's batch, torch) and the processes it starts, which inherit the
+    affinity, then take that core's share (:func:`microg_env.workers.usable_cores`), not every
+    core, which two workers' spinning thread pools fought over (an identification took 4x as long)."""
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_setaffinity") else []
+    if int(workerinput["workercount"]) < 2 or len(cores) < 2:
+        return
+    index = int(str(workerinput["workerid"]).removeprefix("gw"))
+    os.sched_setaffinity(0, {cores[index % len(cores)]})
 
 
 @pytest.hookimpl(optionalhook=True)  # a run without pytest-xdist has no such hook

@@ -21,7 +21,7 @@ from collections.abc import Iterator, Sequence
 
 from microg_env.cli.common import Parser, UsageError, one_line
 from microg_env.version import __version__
-from microg_env.workers import start_fork_server
+from microg_env.workers import start_fork_server, usable_cores
 
 __all__ = ["UsageError", "build_parser", "main"]
 
@@ -60,7 +60,7 @@ def _start_pool(argv: list[str]) -> None:
     options.add_argument("--workers")
     try:
         known = options.parse_known_args(argv[1:])[0]
-        pooled = (os.cpu_count() or 1) > 1 if known.workers is None else int(known.workers) != 1
+        pooled = usable_cores() > 1 if known.workers is None else int(known.workers) != 1
     except (argparse.ArgumentError, ValueError):
         return
     if pooled and not known.help:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import os
 import shlex
 import sys
 from pathlib import Path
@@ -40,6 +39,7 @@ from microg_env.learning.settings import (
 )
 from microg_env.scenarios import comparison_scenarios
 from microg_env.validate import shown
+from microg_env.workers import usable_cores
 
 #: ``microg train``'s options that set a run (``args.yml``), by the TrainSettings field they fill.
 _RUN_FIELDS = {
@@ -333,7 +333,7 @@ def add_commands(commands) -> None:
     compare.add_argument(
         "--workers",
         type=count(MAX_WORKERS),
-        default=min(os.cpu_count() or 1, MAX_WORKERS),
+        default=min(usable_cores(), MAX_WORKERS),
         metavar="N",
         help="threads stepping the batch of rigs, processes for the ideal references (default: every core)",
     )

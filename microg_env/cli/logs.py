@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 from pathlib import Path
 
 from microg_env.cli.common import (
@@ -17,6 +16,7 @@ from microg_env.cli.common import (
     progress_bar,
 )
 from microg_env.logs import DEFAULT_WINDOW_S
+from microg_env.workers import usable_cores
 
 #: Figure formats ``replay --plot`` writes.
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
@@ -196,7 +196,7 @@ def add_commands(commands) -> None:
     identify.add_argument(
         "--workers",
         type=count(64),
-        default=os.cpu_count() or 1,
+        default=usable_cores(),
         metavar="N",
         help="processes replaying the points of a Jacobian at once (default: every core)",
     )

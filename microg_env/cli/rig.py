@@ -8,7 +8,6 @@ import contextlib
 import importlib
 import json
 import math
-import os
 import threading
 from pathlib import Path
 
@@ -32,6 +31,7 @@ from microg_env.imperfections import IMPERFECTION_NAMES
 from microg_env.interface import CONTROLLER_NAMES
 from microg_env.params import CONTROL_PERIOD_RANGE_S, CONTROL_PERIOD_S, LOAD_CAPACITY_KG
 from microg_env.scenarios import MIN_HEIGHT_M, MIN_LOAD_KG, LoadStep
+from microg_env.workers import usable_cores
 
 #: Figure formats ``--plot`` writes.
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
@@ -472,7 +472,7 @@ def add_commands(commands) -> None:
     reproduce.add_argument(
         "--workers",
         type=count(64),
-        default=os.cpu_count() or 1,
+        default=usable_cores(),
         metavar="N",
         help="processes running the independent runs at once (default: every core)",
     )

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
 import platform
 import time
 import traceback
@@ -39,7 +38,7 @@ from microg_env.rollout.spec import RETUNED_PID, RunSpec
 from microg_env.scenarios import Scenario
 from microg_env.sim.reference import cut_reference, reference_key, simulate_reference
 from microg_env.trajectory import Trajectory
-from microg_env.workers import process_pool
+from microg_env.workers import process_pool, usable_cores
 
 #: A reference's cost per simulated second as a share of a run's (0.45 s against 1.7 s for a 30 s
 #: condition), to start the longest tasks first.
@@ -119,7 +118,7 @@ def run_each(
     ideal reference they need, simulated once as long as the longest run that needs it: a run cuts
     its own from it once both have ended (:func:`_shared_references`). ``progress(steps)``: a run's
     control steps as it ends. Raises on the first bad spec."""
-    workers = min(workers or os.cpu_count() or 1, len(specs))
+    workers = min(workers or usable_cores(), len(specs))
     if workers <= 1:  # one process: its kept references are shared already
         results = []
         for spec in specs:

@@ -26,6 +26,8 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
+from microg_env.workers import usable_cores
+
 #: Data fields the rig core reads or writes, each (N, size).
 STATE_FIELDS = ("qpos", "qvel", "act", "ctrl", "qfrc_applied", "qacc", "sensordata", "actuator_force")
 
@@ -86,12 +88,14 @@ os.register_at_fork(after_in_child=_keep_inherited_batches)
 
 
 class BatchPhysics:
-    """N rigs on a persistent :class:`mujoco.batch.Batch` of ``model`` on ``nthread`` threads (0: all)."""
+    """N rigs on a persistent :class:`mujoco.batch.Batch` of ``model`` on ``nthread`` threads (0: one
+    per core this process may run on, :func:`~microg_env.workers.usable_cores`; MuJoCo's own 0 counts
+    every core of the machine, and its spinning threads then starve a process pinned to fewer)."""
 
     def __init__(self, model: mujoco.MjModel, num_rigs: int, nthread: int = 0) -> None:
         self.model = model
         self.num_rigs = num_rigs
-        self.batch = mujoco.batch.Batch(model, num_rigs, nthread=nthread, persistent=True)
+        self.batch = mujoco.batch.Batch(model, num_rigs, nthread=nthread or usable_cores(), persistent=True)
         _LIVE_BATCHES.add(self)
         for name in STATE_FIELDS:
             setattr(self, name, self.batch.bind(name))

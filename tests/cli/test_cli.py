@@ -865,7 +865,7 @@ def test_a_misspelt_option_gets_the_closest_option_of_its_command(capsys):
 @pytest.mark.parametrize(
     ("argv", "started"),
     [
-        (["reproduce", "--out", "x"], (os.cpu_count() or 1) > 1),
+        (["reproduce", "--out", "x"], True),  # two usable cores (below): a pool by default
         (["reproduce", "--workers", "2"], True),
         (["reproduce", "--workers=1"], False),
         (["reproduce", "--workers", "1"], False),
@@ -881,8 +881,19 @@ def test_a_misspelt_option_gets_the_closest_option_of_its_command(capsys):
 def test_a_pooled_command_starts_its_fork_server_before_it_imports_the_rest(monkeypatch, argv, started):
     calls = []
     monkeypatch.setattr(cli, "start_fork_server", calls.append)
+    monkeypatch.setattr(cli, "usable_cores", lambda: 2)
     cli._start_pool(argv)
     assert calls == ([cli.POOLED_COMMANDS["reproduce"]] if started else [])
+
+
+def test_a_command_on_one_usable_core_starts_no_fork_server(monkeypatch):
+    """The default pool is one process per core this process may run on (its affinity), not per
+    core of the machine: on one, none."""
+    calls = []
+    monkeypatch.setattr(cli, "start_fork_server", calls.append)
+    monkeypatch.setattr(cli, "usable_cores", lambda: 1)
+    cli._start_pool(["reproduce", "--out", "x"])
+    assert calls == []
 
 
 def test_importing_the_package_imports_neither_mujoco_nor_the_environments():

@@ -139,6 +139,16 @@ def test_a_vector_env_of_one_rig_runs_on_the_batch_and_equals_the_single_env():
         np.testing.assert_array_equal(batched[key][:, 0], values, err_msg=key)
 
 
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="the platform has no CPU affinity")
+@pytest.mark.parametrize("cores", [{0}, {0, 1, 2}])
+def test_nthread_0_steps_on_one_thread_per_core_the_process_may_run_on(monkeypatch, cores):
+    """Not MuJoCo's 0, every core of the machine: a process kept to fewer (a container, a test
+    worker) then ran spinning threads that fought over them (an identification took 4x as long)."""
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: cores)
+    assert MicroGravityLandingVectorEnv(4, condition=3).core.physics.batch.nthread == len(cores)
+    assert MicroGravityLandingVectorEnv(2, condition=3, nthread=2).core.physics.batch.nthread == 2
+
+
 @pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
 def test_steps_exactly_as_a_sync_vector_env_of_single_envs_through_autoresets(mode):
     """Gymnasium's vector contract, checked against its own SyncVectorEnv: spaces, seeding,
