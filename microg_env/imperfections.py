@@ -98,6 +98,8 @@ def check_parameters_used(
     A parameter left at its default is never refused."""
     given, defaults = parameter_paths(params), parameter_paths()
     chosen = [path for path, value in given.items() if value != defaults[path]]
+    if not chosen:
+        return
     for name in IMPERFECTION_NAMES:
         if getattr(imperfections, name):
             continue

@@ -13,6 +13,7 @@ their defaults and bounds are the module constants below.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -458,9 +459,24 @@ class RigParams:
                 validate.instance(f"RigParams.{f.name}", getattr(self, f.name), f.default_factory)
 
 
+@functools.cache
+def paper_rig() -> RigParams:
+    """``RigParams()``, built and validated once (it is immutable): what a spec's rig starts from,
+    thousands of times in a campaign's expansion."""
+    return RigParams()
+
+
 def parameter_paths(params: RigParams | None = None) -> dict[str, object]:
     """Every leaf parameter by dotted path (``"pad.stiffness_n_per_m"``) with its value."""
-    params = RigParams() if params is None else params
+    return dict(_paper_paths()) if params is None else _paths(params)
+
+
+@functools.cache
+def _paper_paths() -> dict[str, object]:
+    return _paths(paper_rig())
+
+
+def _paths(params: RigParams) -> dict[str, object]:
     paths: dict[str, object] = {}
     for f in dataclasses.fields(params):
         value = getattr(params, f.name)
@@ -498,6 +514,8 @@ def with_overrides(params: RigParams, overrides: Mapping[str, object]) -> RigPar
     """``params`` with the values at the given dotted paths replaced (validated as usual; the
     values of one part are replaced together, so related limits may move together)."""
     validate.instance("overrides", overrides, Mapping)
+    if not overrides:
+        return params
     known = parameter_paths(params)
     parts: dict[str, dict[str, object]] = {}
     top: dict[str, object] = {}

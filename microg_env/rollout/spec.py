@@ -35,6 +35,7 @@ from microg_env.params import (
     CONTROL_PERIOD_S,
     PHYSICS_STEP_S,
     RigParams,
+    paper_rig,
     parameter_paths,
     typed_overrides,
     with_overrides,
@@ -249,11 +250,11 @@ class RunSpec:
 
     def rig_params(self) -> RigParams:
         """The nominal rig, as the controller assumes it: the paper's with this spec's overrides."""
-        return with_overrides(RigParams(), self.overrides)
+        return with_overrides(paper_rig(), self.overrides)
 
     def plant_params(self) -> RigParams:
         """The rig that runs: :meth:`rig_params` with this spec's plant overrides."""
-        return with_overrides(RigParams(), self._plant_overrides())
+        return with_overrides(paper_rig(), self._plant_overrides())
 
     def _plant_overrides(self) -> dict[str, Any]:
         return dict(self.overrides) | dict(self.plant_overrides)
@@ -262,7 +263,7 @@ class RunSpec:
         """The rig of a batch's compiled model: the paper's with this spec's overrides (the plant's
         included) but those of the parameters an episode sets (:meth:`rig_schedule` carries them)."""
         overrides = self._plant_overrides()
-        return with_overrides(RigParams(), {p: v for p, v in overrides.items() if p not in EPISODE_PARAMETERS})
+        return with_overrides(paper_rig(), {p: v for p, v in overrides.items() if p not in EPISODE_PARAMETERS})
 
     def imperfection_flags(self) -> Imperfections:
         return Imperfections(**self.imperfections)
@@ -291,7 +292,7 @@ def _overrides(values: object, base: RigParams | None = None, name: str = "RunSp
     """Dotted rig parameters, each value of its default's type (so 100 and 100.0 hash alike); a
     value equal to ``base``'s (default: the paper's rig) is dropped (the same run hashes alike
     however it is written)."""
-    base = RigParams() if base is None else base
+    base = paper_rig() if base is None else base
     defaults = parameter_paths(base)
     typed = typed_overrides(name, values)
     out = {path: value for path, value in sorted(typed.items()) if value != defaults[path]}
