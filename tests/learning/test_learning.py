@@ -1066,7 +1066,7 @@ def test_a_run_killed_in_its_final_evaluation_is_finished_by_a_resume(tmp_path, 
     what is missing."""
     logs = tmp_path / "logs"
     command = [sys.executable, "-m", "microg_env.cli", "train", "-conf", str(_tiny_hyperparams(tmp_path, "ppo"))]
-    command += ["--timesteps", "128", "--eval-freq", "100000", "--eval-episodes", "3", "--checkpoint-freq", "100000"]
+    command += ["--timesteps", "128", "--eval-freq", "100000", "--eval-episodes", "1", "--checkpoint-freq", "100000"]
     command += ["--log-folder", str(logs), "--quiet"]
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     latest = logs / "ppo" / f"{ENV_ID}_1" / "checkpoints" / "latest.json"
