@@ -103,6 +103,13 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):
     return GroupScheduling(config, log)
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _stable_baselines3_logs_in_the_sessions_folder(tmp_path_factory):
+    """A model learning without a log folder (the plain-SB3 tests) makes an empty one in the system's
+    temporary folder each time; here it goes to the session's, which pytest cleans up."""
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3"))
+
+
 @pytest.fixture(autouse=True)
 def _quiet_gymnasium_warnings():
     """Unbounded observation boxes draw a Gymnasium warning; physical quantities are unbounded."""
