@@ -104,7 +104,7 @@ class LandingCore:
     see its docstring).
 
     ``scenarios`` gives each rig its own schedule (N of them; instead of ``scenario``/``condition``).
-    ``batched`` steps the rigs on ``mujoco.batch`` with ``nthread`` threads (0: every core); else
+    ``batched`` steps the rigs on ``mujoco.batch`` with ``nthread`` threads (0: one per usable core); else
     the one rig steps its own ``MjData``.
     """
 

@@ -47,7 +47,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
     | ``num_envs`` | 1 | the number of rigs N |
     | ``autoreset_mode`` | ``NEXT_STEP`` | Gymnasium's ``AutoresetMode`` (or ``"NextStep"``, ``"SameStep"``...) |
     | ``scenarios`` | None | one ``Scenario`` per rig (instead of ``scenario``/``condition``) |
-    | ``nthread`` | 0 | threads stepping the batch (0: every core) |
+    | ``nthread`` | 0 | threads stepping the batch (0: one per core the process may run on) |
     | ``max_episode_steps`` | None | most steps an episode runs (``gym.make_vec`` passes the id's), as ``TimeLimit`` |
 
     ``reset(seed=s)`` seeds rig i with s + i (a list gives one seed per rig); each rig keeps its own
