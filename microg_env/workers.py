@@ -33,8 +33,9 @@ from multiprocessing.connection import Connection
 
 
 def usable_cores() -> int:
-    """The cores this process may run on: its CPU affinity where the platform has one (a container's
-    or a test worker's share), else every core. What "0: every core" means for threads and workers."""
+    """The cores this process may run on: its CPU affinity where the platform has one (a cpuset, a
+    pinned test worker; a CPU quota does not show in it), else every core. What "every usable core" means
+    for the package's default threads and processes."""
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1

@@ -60,11 +60,12 @@ run_all([RunSpec("condition-2", "pid", seed, duration_s=0.05) for seed in (0, 1)
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Before pytest-xdist starts its workers: compile the package's numba kernels into their cache
-    (:mod:`microg_env.compiled`), once, here (the tree the tests import) and in a process started
-    outside the tree (the installed copy, which commands run from other folders import). On a fresh
-    clone every process that found a cache empty compiled the kernels itself, about 13 CPU-seconds
-    each: the workers, and the commands, Ray workers and process pools the tests start."""
+    """In a pytest-xdist worker: pin it (:func:`_pin_worker`). Before the workers start: compile the
+    package's numba kernels into their cache (:mod:`microg_env.compiled`), once, here (the tree the
+    tests import) and in a process started outside the tree (the installed copy, which commands run
+    from other folders import). On a fresh clone every process that found a cache empty compiled the
+    kernels itself, about 13 CPU-seconds each: the workers, and the commands, Ray workers and
+    process pools the tests start."""
     if hasattr(config, "workerinput"):
         _pin_worker(config.workerinput)
         return
@@ -76,15 +77,15 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def _pin_worker(workerinput: dict) -> None:
-    """A pytest-xdist worker kept to one core of the machine's, its own where there are enough: the
-    threads a test starts (MuJoCo's batch, torch) and the processes it starts, which inherit the
-    affinity, then take that core's share (:func:`microg_env.workers.usable_cores`), not every
-    core, which two workers' spinning thread pools fought over (an identification took 4x as long)."""
-    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_setaffinity") else []
-    if int(workerinput["workercount"]) < 2 or len(cores) < 2:
+    """A pytest-xdist worker kept to a core of its own: what its tests start (threads, processes)
+    stays there (:func:`microg_env.workers.usable_cores`). Two workers' spinning thread pools on
+    every core made an identification 4x as slow."""
+    number = str(workerinput["workerid"]).removeprefix("gw")
+    if not hasattr(os, "sched_setaffinity") or not number.isdigit() or int(workerinput["workercount"]) < 2:
         return
-    index = int(str(workerinput["workerid"]).removeprefix("gw"))
-    os.sched_setaffinity(0, {cores[index % len(cores)]})
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) > 1:
+        os.sched_setaffinity(0, {cores[int(number) % len(cores)]})
 
 
 @pytest.hookimpl(optionalhook=True)  # a run without pytest-xdist has no such hook

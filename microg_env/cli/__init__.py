@@ -51,7 +51,7 @@ def _check_top_level(argv: list[str]) -> None:
 
 def _start_pool(argv: list[str]) -> None:
     """Start the fork server of a pooled command (:data:`POOLED_COMMANDS`) that will run on more
-    than one process (``--workers``, default every core); not for its help, and not where its
+    than one process (``--workers``, default every usable core); not for its help, and not where its
     options are bad (its own parser says so)."""
     if argv[0] not in POOLED_COMMANDS:
         return

@@ -89,7 +89,10 @@ def add_commands(commands) -> None:
         "--address", metavar="RAY_ADDRESS", help="an existing Ray cluster (HOST:PORT or 'auto'); default: a local Ray"
     )
     campaign.add_argument(
-        "--num-cpus", type=int, metavar="N", help="CPUs of the local Ray (default: every core; ignored with --address)"
+        "--num-cpus",
+        type=int,
+        metavar="N",
+        help="CPUs of the local Ray (default: every usable core; ignored with --address)",
     )
     campaign.add_argument("--json", action="store_true", help="print a JSON summary")
     campaign.add_argument("--quiet", action="store_true", help="no progress bar")

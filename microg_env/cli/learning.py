@@ -335,7 +335,7 @@ def add_commands(commands) -> None:
         type=count(MAX_WORKERS),
         default=min(usable_cores(), MAX_WORKERS),
         metavar="N",
-        help="threads stepping the batch of rigs, processes for the ideal references (default: every core)",
+        help="threads stepping the batch of rigs, processes for the ideal references (default: every usable core)",
     )
     add_rig_option(compare)
     compare.add_argument("--json", action="store_true", help="print one JSON object instead of the table")

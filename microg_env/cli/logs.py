@@ -196,9 +196,9 @@ def add_commands(commands) -> None:
     identify.add_argument(
         "--workers",
         type=count(64),
-        default=usable_cores(),
+        default=min(usable_cores(), 64),
         metavar="N",
-        help="processes replaying the points of a Jacobian at once (default: every core)",
+        help="processes replaying the points of a Jacobian at once (default: every usable core)",
     )
     identify.add_argument("--json", action="store_true", help="print one JSON object")
     identify.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -472,9 +472,9 @@ def add_commands(commands) -> None:
     reproduce.add_argument(
         "--workers",
         type=count(64),
-        default=usable_cores(),
+        default=min(usable_cores(), 64),
         metavar="N",
-        help="processes running the independent runs at once (default: every core)",
+        help="processes running the independent runs at once (default: every usable core)",
     )
     reproduce.add_argument("--quiet", action="store_true", help="no progress bar")
     reproduce.set_defaults(handler=_cmd_reproduce)

@@ -34,6 +34,7 @@ from microg_env.experiments.tuning import run_with_retuning
 from microg_env.files import LOCK_FILE, folder_lock, write_text
 from microg_env.rollout.runner import RunResult
 from microg_env.rollout.spec import RunSpec
+from microg_env.workers import usable_cores
 
 #: Seconds to wait for a cluster's head to answer.
 CONNECT_TIMEOUT_S = 5.0
@@ -244,7 +245,7 @@ def _start_ray(address: str | None, num_cpus: int | None) -> Any:
     try:
         return ray.init(
             address=address or "local",
-            num_cpus=None if address else num_cpus,
+            num_cpus=None if address else (usable_cores() if num_cpus is None else num_cpus),
             include_dashboard=False,
             log_to_driver=False,
             logging_level="ERROR",

@@ -71,7 +71,7 @@ def compute(
     duration_s: float = 30.0, seed: int = 0, progress: Callable[[int], None] | None = None, workers: int | None = None
 ) -> Reproduction:
     """Run everything the report shows (``progress(steps)`` as each run ends), the runs in parallel on
-    ``workers`` processes (default: every core; 1: in this process, one after another)."""
+    ``workers`` processes (default: every usable core; 1: in this process, one after another)."""
     mains, eq17_specs, drift_specs = {}, {}, {}
     pads = {}
     for pad in PADS:

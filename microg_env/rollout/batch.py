@@ -63,8 +63,8 @@ def run_batches(
     rigs, there, with the error naming it (else None); the others run on. Every episode is a rig of
     one compiled model: their schedules may differ in their weights, start height, length and the
     parameters an episode sets (:data:`~microg_env.sim.model.EPISODE_PARAMETERS`), else the batch
-    raises. At most :data:`MAX_BATCH` rigs are stepped at once, on ``nthread`` threads (0: every
-    core); ``progress(episodes)`` reports finished fractions of episodes."""
+    raises. At most :data:`MAX_BATCH` rigs are stepped at once, on ``nthread`` threads (0: one per
+    usable core); ``progress(episodes)`` reports finished fractions of episodes."""
     settings = dict(settings or {})
     if len({episode.scenario is None for episode in episodes}) > 1:
         raise ValueError("episodes name a schedule each or none does (the settings' schedule or sampler), not some")

@@ -114,7 +114,7 @@ def run_each(
     specs: Sequence[RunSpec], workers: int | None = None, progress: Callable[[int], None] | None = None
 ) -> list[RunResult]:
     """:func:`run` of each of ``specs`` (with its trajectories), in order; independent runs on
-    ``workers`` processes at once (default: every core; 1: here, one after another), beside each
+    ``workers`` processes at once (default: every usable core; 1: here, one after another), beside each
     ideal reference they need, simulated once as long as the longest run that needs it: a run cuts
     its own from it once both have ended (:func:`_shared_references`). ``progress(steps)``: a run's
     control steps as it ends. Raises on the first bad spec."""

@@ -292,8 +292,8 @@ def _overrides(values: object, base: RigParams | None = None, name: str = "RunSp
     """Dotted rig parameters, each value of its default's type (so 100 and 100.0 hash alike); a
     value equal to ``base``'s (default: the paper's rig) is dropped (the same run hashes alike
     however it is written)."""
-    base = paper_rig() if base is None else base
     defaults = parameter_paths(base)
+    base = paper_rig() if base is None else base
     typed = typed_overrides(name, values)
     out = {path: value for path, value in sorted(typed.items()) if value != defaults[path]}
     with_overrides(base, out)  # the parameters' own checks name a bad value now

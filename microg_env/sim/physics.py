@@ -89,8 +89,8 @@ os.register_at_fork(after_in_child=_keep_inherited_batches)
 
 class BatchPhysics:
     """N rigs on a persistent :class:`mujoco.batch.Batch` of ``model`` on ``nthread`` threads (0: one
-    per core this process may run on, :func:`~microg_env.workers.usable_cores`; MuJoCo's own 0 counts
-    every core of the machine, and its spinning threads then starve a process pinned to fewer)."""
+    per core this process may run on, :func:`~microg_env.workers.usable_cores`, not MuJoCo's every
+    core of the machine)."""
 
     def __init__(self, model: mujoco.MjModel, num_rigs: int, nthread: int = 0) -> None:
         self.model = model

@@ -863,37 +863,28 @@ def test_a_misspelt_option_gets_the_closest_option_of_its_command(capsys):
 
 
 @pytest.mark.parametrize(
-    ("argv", "started"),
+    ("argv", "cores", "started"),
     [
-        (["reproduce", "--out", "x"], True),  # two usable cores (below): a pool by default
-        (["reproduce", "--workers", "2"], True),
-        (["reproduce", "--workers=1"], False),
-        (["reproduce", "--workers", "1"], False),
-        (["reproduce", "--help"], False),
-        (["reproduce", "--hel"], False),  # argparse's abbreviation of --help
-        (["reproduce", "--workers", "01"], False),  # one worker, as the command's parser reads it
-        (["reproduce", "--work", "3"], True),
-        (["reproduce", "--seed", "1", "--workers"], False),  # a bad option: the command's parser says so
-        (["reproduce", "--workers", "many"], False),
-        (["run", "--condition", "2"], False),
+        (["reproduce", "--out", "x"], 2, True),  # a pool of one process per usable core by default
+        (["reproduce", "--out", "x"], 1, False),  # one usable core (its affinity), however many the machine has
+        (["reproduce", "--workers", "2"], 1, True),
+        (["reproduce", "--workers=1"], 2, False),
+        (["reproduce", "--workers", "1"], 2, False),
+        (["reproduce", "--help"], 2, False),
+        (["reproduce", "--hel"], 2, False),  # argparse's abbreviation of --help
+        (["reproduce", "--workers", "01"], 2, False),  # one worker, as the command's parser reads it
+        (["reproduce", "--work", "3"], 2, True),
+        (["reproduce", "--seed", "1", "--workers"], 2, False),  # a bad option: the command's parser says so
+        (["reproduce", "--workers", "many"], 2, False),
+        (["run", "--condition", "2"], 2, False),
     ],
 )
-def test_a_pooled_command_starts_its_fork_server_before_it_imports_the_rest(monkeypatch, argv, started):
+def test_a_pooled_command_starts_its_fork_server_before_it_imports_the_rest(monkeypatch, argv, cores, started):
     calls = []
     monkeypatch.setattr(cli, "start_fork_server", calls.append)
-    monkeypatch.setattr(cli, "usable_cores", lambda: 2)
+    monkeypatch.setattr(cli, "usable_cores", lambda: cores)
     cli._start_pool(argv)
     assert calls == ([cli.POOLED_COMMANDS["reproduce"]] if started else [])
-
-
-def test_a_command_on_one_usable_core_starts_no_fork_server(monkeypatch):
-    """The default pool is one process per core this process may run on (its affinity), not per
-    core of the machine: on one, none."""
-    calls = []
-    monkeypatch.setattr(cli, "start_fork_server", calls.append)
-    monkeypatch.setattr(cli, "usable_cores", lambda: 1)
-    cli._start_pool(["reproduce", "--out", "x"])
-    assert calls == []
 
 
 def test_importing_the_package_imports_neither_mujoco_nor_the_environments():

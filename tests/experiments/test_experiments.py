@@ -994,3 +994,18 @@ def test_a_row_another_microg_version_wrote_runs_again(tmp_path):
     store.write([{"spec_hash": "b", "status": "ok", "versions": json.dumps(mine)}])  # run again: it supersedes
     assert store.statuses() == {"a": "ok", "b": "ok", "c": STALE}
     assert store.table(["b"]).column("versions").to_pylist() == [json.dumps(mine)]
+
+
+@pytest.mark.parametrize(("address", "num_cpus", "expected"), [(None, None, 3), (None, 2, 2), ("auto", None, None)])
+def test_a_local_ray_gets_every_usable_core_by_default_and_a_cluster_its_own(monkeypatch, address, num_cpus, expected):
+    """Ray counts the machine's cores (or its cgroup's), not the process's affinity: a local Ray is
+    told the usable cores, as every other default pool is; a cluster's CPUs are its own."""
+    import ray
+
+    from microg_env.experiments import distributed
+
+    seen = {}
+    monkeypatch.setattr(distributed, "usable_cores", lambda: 3)
+    monkeypatch.setattr(ray, "init", lambda **kwargs: seen.update(kwargs))
+    distributed._start_ray(address, num_cpus)
+    assert seen["num_cpus"] == expected

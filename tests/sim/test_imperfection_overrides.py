@@ -146,3 +146,17 @@ def test_a_campaign_sweeping_a_parameter_its_imperfection_off_leaves_unused_is_r
     with pytest.raises(ValueError, match=r"^at \{'qzs.guide_damping_n_s_per_m': 20.0\}: RunSpec.overrides ") as error:
         Campaign.from_dict(data)
     assert "imperfection 'friction' is off, which sets it to 0.0" in str(error.value)
+
+
+def test_the_paper_rig_is_built_once_and_each_caller_gets_its_own_paths():
+    """The spec expansion's shortcuts: one ``RigParams()``, no copy for no override, and a mutated
+    path table that is the caller's alone (the cached one stays the paper's)."""
+    from microg_env.params import paper_rig
+
+    paths = parameter_paths()
+    paths["pad.stiffness_n_per_m"] = -1.0
+    assert parameter_paths()["pad.stiffness_n_per_m"] == RigParams().pad.stiffness_n_per_m
+    assert paper_rig() is paper_rig()
+    assert paper_rig() == RigParams()
+    rig = with_overrides(RigParams(), {"pad.damping_n_s_per_m": 150.0})
+    assert with_overrides(rig, {}) is rig
