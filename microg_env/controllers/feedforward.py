@@ -152,8 +152,9 @@ class Feedforward(VectorController):
 class Oracle(Feedforward):
     """The feed-forward given each episode's true plant (lander, pad, friction, drive), not the
     nominal one: not deployable (no operator knows the plant), a reference point for what knowing
-    the plant is worth to this controller's structure, not a bound on any controller's. The harness tells it the plant at every reset (:meth:`know_plants`); it refuses to act
-    on a rig whose plant it was not told."""
+    the plant is worth to this controller's structure, not a bound on any controller's. The
+    harness tells it the plant at every reset (:meth:`know_plants`); it refuses to act on a rig
+    whose plant it was not told."""
 
     def reset(self, ids: np.ndarray | None = None) -> None:
         super().reset(ids)
