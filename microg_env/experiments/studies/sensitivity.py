@@ -160,9 +160,8 @@ def _case(
     campaign, case: str, runs_of: dict[str, list[list[str]]], stored: dict[str, dict], section: str, ranking: dict
 ) -> list[str]:
     """One combination's sections (``runs_of`` as :func:`_cases` and ``stored`` as :func:`design_rows`
-    give them): its
-    lost runs and its headline numbers, each design point's quantity the mean over the seeds; each
-    quantity's mu* goes to ``ranking`` by (quantity, :func:`_series`)."""
+    give them): its lost runs and its headline numbers, each design point's quantity the mean over
+    the seeds; each quantity's mu* goes to ``ranking`` by (quantity, :func:`_series`)."""
     from SALib.analyze import morris
 
     keys, levels = list(campaign.samples["draw"]), campaign.samples.get("levels", 4)
