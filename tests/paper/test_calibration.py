@@ -84,7 +84,8 @@ def test_stored_pads_are_what_the_calibration_gives(name, source, fit):
     assert stored_pads()[name]["source"] == source
     assert stored.stiffness_n_per_m == pytest.approx(fresh.stiffness_n_per_m, rel=1e-3)
     assert stored.damping_n_s_per_m == pytest.approx(fresh.damping_n_s_per_m, rel=1e-3)
-    assert stored.iterations == fresh.iterations
+    # the count of accepted steps can move by one with the CPU's BLAS kernel (AVX-512 against AVX2)
+    assert abs(stored.iterations - fresh.iterations) <= 1
     np.testing.assert_allclose(stored.max_deformation_pct, fresh.max_deformation_pct, atol=0.01)
     np.testing.assert_allclose(stored.collision_accel_pct, fresh.collision_accel_pct, atol=0.01)
 
