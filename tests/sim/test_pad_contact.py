@@ -48,7 +48,8 @@ def test_flat_foot_makes_several_contact_points_throughout_the_impact():
 @pytest.mark.slow
 def test_static_sink_is_load_over_stiffness(load, stiffness, damping):
     params = replace(RigParams(), pad=PadParams(stiffness_n_per_m=stiffness, damping_n_s_per_m=damping))
-    assert static_sink(params, load) == pytest.approx(load / stiffness, rel=0.02)
+    # six decay times leave e^-6 = 0.25 % of the ringing: 0.10-0.15 % off (3e-4 after the default 12)
+    assert static_sink(params, load, settle_decays=6.0) == pytest.approx(load / stiffness, rel=0.005)
 
 
 @pytest.mark.slow
@@ -56,7 +57,7 @@ def test_static_sink_exposes_the_impedance_trap():
     # With MuJoCo's usual impedance the impact can be tuned right while the sink is far off:
     # the solver scales every other force by about (1 - d) / (1 + (n - 1) d).
     params = replace(RigParams(), pad=replace(PadParams(), impedance=0.3))
-    sink = static_sink(params, 4.9)
+    sink = static_sink(params, 4.9, settle_decays=6.0)  # 0.44 of load / K
     assert sink < 0.5 * 4.9 / 4666.0
 
 
