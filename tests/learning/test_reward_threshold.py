@@ -1,4 +1,12 @@
-"""The residual ids' reward_threshold, measured (in a file of its own: the runs are long)."""
+"""The residual ids' reward_threshold: the zero residual's mean return over the id's own draws,
+seeds 1000-1099, rounded down (as ``training/returns_table.py`` measures it). The hundred returns
+are stored in ``zero_residual_returns.json``; ``python tests/learning/test_reward_threshold.py``
+measures them again (a minute) and rewrites it. A test re-runs three of them."""
+
+import json
+import math
+import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -10,19 +18,25 @@ from microg_env.task import TaskSettings
 
 #: The draws each threshold is the mean return over: seeds 1000-1099 (training/returns_table.py).
 FIRST_SEED, RIGS = 1000, 100
+#: Ids a zero residual runs the same for: one base and one draw, scored at each id's reward scale.
+GROUPS = (("MicroGravityLanding-Residual-v1",), ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v7"))
+RETURNS = Path(__file__).with_name("zero_residual_returns.json")
+#: The stored returns a test re-runs: the first, middle and last seed.
+RERUN = (0, 49, 99)
 
 
-def _zero_residual_runs(env_id: str) -> tuple[list[np.ndarray], float, int]:
-    """x at every control period of each rig's first episode under the zero residual, on a vector env
-    of 100 rigs (rig i is the single env seeded 1000 + i, bit for bit) acting every period; the
+def _zero_residual_runs(env_id: str, seeds: list[int]) -> tuple[list[np.ndarray], float, int]:
+    """x at every control period of each seed's first episode under the zero residual, on a vector
+    env of one rig a seed (the single env of that seed, bit for bit) acting every period; the
     guide's limit; the id's decision period. A zero residual is its base controller however often it
     acts, so the trajectories are the id's own."""
     period = gym.spec(env_id).kwargs["decision_period"]
-    vector = gym.make_vec(env_id, num_envs=RIGS, vectorization_mode="vector_entry_point", decision_period=1)
-    vector.reset(seed=FIRST_SEED)
-    x, running = [[] for _ in range(RIGS)], np.ones(RIGS, dtype=bool)
+    rigs = len(seeds)
+    vector = gym.make_vec(env_id, num_envs=rigs, vectorization_mode="vector_entry_point", decision_period=1)
+    vector.reset(seed=seeds)
+    x, running = [[] for _ in range(rigs)], np.ones(rigs, dtype=bool)
     while running.any():  # an ended rig resets and steps on, uncounted
-        _, _, terminated, truncated, info = vector.step(np.zeros((RIGS, 1), dtype=np.float32))
+        _, _, terminated, truncated, info = vector.step(np.zeros((rigs, 1), dtype=np.float32))
         for i in np.flatnonzero(running):
             x[i].append(info["x_m"][i])
         running &= ~(terminated | truncated)
@@ -38,28 +52,46 @@ def _return(x_m: np.ndarray, scale_m: float, limit_m: float, period: int) -> flo
     return float(sum(paid[i : i + period].mean() for i in range(0, paid.size, period)))
 
 
+def _returns(group: tuple[str, ...], seeds: list[int]) -> dict[str, list[float]]:
+    """Each id's zero-residual return on each of ``seeds``, from one run of the group's first id."""
+    x, limit, period = _zero_residual_runs(group[0], seeds)
+    out = {}
+    for env_id in group:
+        scale = gym.spec(env_id).kwargs.get("reward_scale_m", TaskSettings().reward_scale_m)
+        out[env_id] = [_return(each, scale, limit, period) for each in x]
+    return out
+
+
+def _stored() -> dict[str, list[float]]:
+    return json.loads(RETURNS.read_text())["returns"]
+
+
+def test_each_group_runs_one_base_on_one_draw():
+    """A zero action passes either gate as 0: the ids of a group differ in their reward scale alone."""
+    for group in GROUPS:
+        first = gym.spec(group[0]).kwargs
+        for env_id in group[1:]:
+            kwargs = gym.spec(env_id).kwargs
+            differ = {k for k in {*kwargs, *first} if kwargs.get(k) != first.get(k)}
+            assert differ <= {"reward_scale_m", "residual_gate_on"}, differ
+
+
+@pytest.mark.parametrize("env_id", [env_id for group in GROUPS for env_id in group])
+def test_the_reward_threshold_is_the_stored_zero_residual_returns_mean_rounded_down(env_id):
+    returns = _stored()[env_id]
+    assert len(returns) == RIGS
+    assert gym.spec(env_id).reward_threshold == math.floor(np.mean(returns)), np.mean(returns)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "env_ids",
-    [
-        ("MicroGravityLanding-Residual-v1",),
-        # one base (adaptive-dither) and one draw: one run scored at each id's reward scale
-        ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v7"),
-    ],
-    ids=lambda env_ids: "+".join(env_id.rsplit("-", 1)[1] for env_id in env_ids),
-)
-def test_the_reward_threshold_is_the_zero_residuals_measured_return(env_ids):
-    """Each base's reward_threshold is its zero residual's mean return over the id's own draws,
-    seeds 1000-1099, rounded down (as ``training/returns_table.py`` measures it)."""
-    specs = [gym.spec(env_id) for env_id in env_ids]
-    for spec in specs[1:]:  # the same draws and base; a zero action passes either gate as 0
-        differ = {k for k in {*spec.kwargs, *specs[0].kwargs} if spec.kwargs.get(k) != specs[0].kwargs.get(k)}
-        assert differ <= {"reward_scale_m", "residual_gate_on"}, differ
-    x, limit, period = _zero_residual_runs(env_ids[0])
-    for spec in specs:
-        scale = spec.kwargs.get("reward_scale_m", TaskSettings().reward_scale_m)
-        mean = np.mean([_return(each, scale, limit, period) for each in x])
-        assert spec.reward_threshold <= mean < spec.reward_threshold + 1, (spec.id, mean)
+@pytest.mark.parametrize("group", GROUPS, ids=lambda group: "+".join(env_id.rsplit("-", 1)[1] for env_id in group))
+def test_stored_returns_rerun_to_their_stored_values(group):
+    """The first, middle and last seed's returns, run again: a change of the physics, the base or
+    the reward moves them (then rerun this file as a script and check the thresholds)."""
+    stored = _stored()
+    fresh = _returns(group, [FIRST_SEED + i for i in RERUN])
+    for env_id in group:
+        np.testing.assert_allclose(fresh[env_id], [stored[env_id][i] for i in RERUN], rtol=1e-9, err_msg=env_id)
 
 
 @pytest.mark.slow
@@ -86,3 +118,12 @@ def test_the_returns_scored_from_x_are_those_the_environment_pays():
     limit = as_registered.unwrapped.core.x_limit_m
     scale = gym.spec(env_id).kwargs["reward_scale_m"]
     assert _return(np.array(x), scale, limit, period) == pytest.approx(total, rel=1e-12)
+
+
+if __name__ == "__main__":  # measure the hundred returns again and store them
+    seeds = list(range(FIRST_SEED, FIRST_SEED + RIGS))
+    returns = {env_id: each for group in GROUPS for env_id, each in _returns(group, seeds).items()}
+    text = {"measured": f"python {Path(*Path(__file__).parts[-3:])}", "seeds": [seeds[0], seeds[-1]]}
+    RETURNS.write_text(json.dumps(text | {"returns": returns}, indent=1) + "\n")
+    for env_id, each in returns.items():
+        print(f"{env_id}: mean {np.mean(each):.2f} +- {np.std(each) / np.sqrt(len(each)):.2f}", file=sys.stderr)
