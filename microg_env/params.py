@@ -510,12 +510,32 @@ def typed_overrides(name: str, values: Mapping[str, object]) -> dict[str, object
     return out
 
 
+#: Rigs :func:`with_overrides` made, by (base rig, each override's path, type and repr): a
+#: campaign asks for the same few thousand times. The key tells 1 from 1.0 and True, -0.0 from 0.0.
+_OVERRIDDEN: dict[tuple, RigParams] = {}
+_MAX_OVERRIDDEN = 4096
+
+
 def with_overrides(params: RigParams, overrides: Mapping[str, object]) -> RigParams:
     """``params`` with the values at the given dotted paths replaced (validated as usual; the
     values of one part are replaced together, so related limits may move together)."""
     validate.instance("overrides", overrides, Mapping)
     if not overrides:
         return params
+    key = (params, tuple((path, type(value), repr(value)) for path, value in overrides.items()))
+    try:
+        return _OVERRIDDEN[key]
+    except KeyError:
+        pass
+    except TypeError:  # a rig built with an unhashable value: made afresh
+        return _overridden(params, overrides)
+    if len(_OVERRIDDEN) >= _MAX_OVERRIDDEN:
+        _OVERRIDDEN.clear()
+    _OVERRIDDEN[key] = made = _overridden(params, overrides)
+    return made
+
+
+def _overridden(params: RigParams, overrides: Mapping[str, object]) -> RigParams:
     known = parameter_paths(params)
     parts: dict[str, dict[str, object]] = {}
     top: dict[str, object] = {}

@@ -8,6 +8,7 @@ sizes) and deployed as it was trained (:func:`deployed_controller`).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import zipfile
@@ -74,9 +75,29 @@ def check_controller_name(name: str, sensor_set: str = "extended") -> str:
     trained on what that rig reads, :func:`check_sensor_set`), else a ValueError listing what does
     (:func:`~microg_env.interface.selects_policy`)."""
     if selects_policy(name):
-        card, _ = check_policy_folder(policy_folder(name))  # a broken folder named now, not once the work started
+        card = _checked_card(policy_folder(name))  # a broken folder named now, not once the work started
         check_sensor_set(name, card["env_kwargs"], sensor_set)
     return name
+
+
+def _checked_card(folder: Path) -> dict[str, Any]:
+    """The card :func:`check_policy_folder` reads, read and checked once per version of the
+    folder's card and network (each file's size, modification time and inode): a campaign names
+    one policy in thousands of specs. :func:`load_policy` checks afresh."""
+    try:
+        stamp = tuple((s.st_size, s.st_mtime_ns, s.st_ino) for s in (folder.joinpath(f).stat() for f in STAMPED))
+    except OSError:  # check_policy_folder names what is missing
+        return check_policy_folder(folder)[0]
+    return _checked_version(str(folder), stamp)
+
+
+#: The files :func:`_checked_card` tells a folder's versions by.
+STAMPED = (CARD_FILE, NETWORK_FILE)
+
+
+@functools.lru_cache(maxsize=256)
+def _checked_version(folder: str, stamp: tuple) -> dict[str, Any]:
+    return check_policy_folder(folder)[0]
 
 
 def policy_folder(name: str) -> Path:

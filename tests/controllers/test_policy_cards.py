@@ -356,3 +356,20 @@ def test_a_policy_controller_refuses_a_base_its_action_mode_does_not_have():
     with pytest.raises(ValueError, match="action_mode 'speed' acts without a base controller, got base Feedforward"):
         PolicyController(object(), ActingSettings(), make_controller("feedforward", 1e-3))
     assert PolicyController(object(), residual, make_controller("feedforward", 1e-3)).acting == residual
+
+
+def test_a_policy_named_by_many_specs_is_read_once_until_its_files_change(tmp_path, monkeypatch):
+    """Spec validation reads a policy folder once per version of its card and network, and reads
+    it again (and refuses it) once a file changed."""
+    from microg_env.controllers import registry
+
+    folder, reads = _policy(tmp_path), []
+    read = registry.check_policy_folder
+    monkeypatch.setattr(registry, "check_policy_folder", lambda f: reads.append(f) or read(f))
+    for _ in range(3):
+        check_controller_name(str(folder))
+    assert len(reads) == 1
+    (folder / CARD_FILE).write_text("{}")
+    with pytest.raises(ValueError, match="not a policy card"):
+        check_controller_name(str(folder))
+    assert len(reads) == 2

@@ -3,6 +3,7 @@ is refused, in a RunSpec (campaigns, compare) and in ``gym.make``, not run and t
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import gymnasium as gym
@@ -160,3 +161,19 @@ def test_the_paper_rig_is_built_once_and_each_caller_gets_its_own_paths():
     assert paper_rig() == RigParams()
     rig = with_overrides(RigParams(), {"pad.damping_n_s_per_m": 150.0})
     assert with_overrides(rig, {}) is rig
+
+
+def test_an_override_asked_again_is_the_rig_made_before_and_tells_like_values_apart():
+    """A campaign asks ``with_overrides`` for the same rig thousands of times: it is made once.
+    Values equal in Python but not as overrides (1.0 and 1 or True; 0.0 and -0.0) are not confused."""
+    base = RigParams()
+    made = with_overrides(base, {"pad.damping_n_s_per_m": 150.0})
+    assert with_overrides(base, {"pad.damping_n_s_per_m": 150.0}) is made
+    assert with_overrides(base, {"pad.damping_n_s_per_m": 151.0}).pad.damping_n_s_per_m == 151.0
+    assert repr(with_overrides(base, {"pad.damping_n_s_per_m": 150}).pad.damping_n_s_per_m) == "150"
+    with_overrides(base, {"pad.damping_n_s_per_m": 1.0})
+    with pytest.raises(ValueError, match="must be a number, got True"):  # 1.0 taken: True is still refused
+        with_overrides(base, {"pad.damping_n_s_per_m": True})
+    zero = with_overrides(base, {"sensors.ruler_zero_offset_m": 0.0}).sensors.ruler_zero_offset_m
+    negative = with_overrides(base, {"sensors.ruler_zero_offset_m": -0.0}).sensors.ruler_zero_offset_m
+    assert (math.copysign(1.0, zero), math.copysign(1.0, negative)) == (1.0, -1.0)
