@@ -117,7 +117,7 @@ def test_a_log_replays_on_its_own_rig_to_within_its_sensors_noise(short_log):
 
 def test_identify_writes_a_rig_file_that_run_takes(short_log, tmp_path, capsys):
     log = tmp_path / "log.csv"
-    write_log(RigLog({k: v[:600] for k, v in short_log.columns.items()}, 0.01, (LoadStep(1.0),)), log)
+    write_log(RigLog({k: v[:300] for k, v in short_log.columns.items()}, 0.01, (LoadStep(1.0),)), log)
     start = tmp_path / "start.toml"
     start.write_text('description = "ours"\nlander.mass_kg = { value = 620.0, source = "scale" }\n')
     out = tmp_path / "identified.toml"
