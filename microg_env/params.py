@@ -523,15 +523,11 @@ def with_overrides(params: RigParams, overrides: Mapping[str, object]) -> RigPar
     if not overrides:
         return params
     key = (params, tuple((path, type(value), repr(value)) for path, value in overrides.items()))
-    try:
-        return _OVERRIDDEN[key]
-    except KeyError:
-        pass
-    except TypeError:  # a rig built with an unhashable value: made afresh
-        return _overridden(params, overrides)
-    if len(_OVERRIDDEN) >= _MAX_OVERRIDDEN:
-        _OVERRIDDEN.clear()
-    _OVERRIDDEN[key] = made = _overridden(params, overrides)
+    made = _OVERRIDDEN.get(key)  # a rig's parts hold numbers, names and flags: it hashes
+    if made is None:
+        if len(_OVERRIDDEN) >= _MAX_OVERRIDDEN:
+            _OVERRIDDEN.clear()
+        _OVERRIDDEN[key] = made = _overridden(params, overrides)
     return made
 
 

@@ -163,9 +163,14 @@ def test_the_paper_rig_is_built_once_and_each_caller_gets_its_own_paths():
     assert with_overrides(rig, {}) is rig
 
 
-def test_an_override_asked_again_is_the_rig_made_before_and_tells_like_values_apart():
-    """A campaign asks ``with_overrides`` for the same rig thousands of times: it is made once.
-    Values equal in Python but not as overrides (1.0 and 1 or True; 0.0 and -0.0) are not confused."""
+def test_an_override_asked_again_is_the_rig_made_before_and_tells_like_values_apart(monkeypatch):
+    """A campaign asks ``with_overrides`` for the same rig thousands of times: it is made once, in
+    a store of bounded size. Values equal in Python but not as overrides (1.0 and 1 or True; 0.0
+    and -0.0) are not confused."""
+    from microg_env import params as module
+
+    monkeypatch.setattr(module, "_OVERRIDDEN", {})
+    monkeypatch.setattr(module, "_MAX_OVERRIDDEN", 3)
     base = RigParams()
     made = with_overrides(base, {"pad.damping_n_s_per_m": 150.0})
     assert with_overrides(base, {"pad.damping_n_s_per_m": 150.0}) is made
@@ -177,3 +182,4 @@ def test_an_override_asked_again_is_the_rig_made_before_and_tells_like_values_ap
     zero = with_overrides(base, {"sensors.ruler_zero_offset_m": 0.0}).sensors.ruler_zero_offset_m
     negative = with_overrides(base, {"sensors.ruler_zero_offset_m": -0.0}).sensors.ruler_zero_offset_m
     assert (math.copysign(1.0, zero), math.copysign(1.0, negative)) == (1.0, -1.0)
+    assert len(module._OVERRIDDEN) <= 3
