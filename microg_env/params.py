@@ -466,14 +466,25 @@ def paper_rig() -> RigParams:
     return RigParams()
 
 
+#: The rigs :func:`parameter_paths` and :func:`with_overrides` keep, each at most: a campaign's
+#: expansion asks for the same few rigs thousands of times. An entry holds its rig, so the rig's
+#: id is not reused while the entry stands; a rig equal to another is still a rig of its own.
+_MAX_KEPT = 1024
+#: id of a rig -> (the rig, its paths).
+_PATHS: dict[int, tuple[RigParams, dict[str, object]]] = {}
+
+
 def parameter_paths(params: RigParams | None = None) -> dict[str, object]:
-    """Every leaf parameter by dotted path (``"pad.stiffness_n_per_m"``) with its value."""
-    return dict(_paper_paths()) if params is None else _paths(params)
-
-
-@functools.cache
-def _paper_paths() -> dict[str, object]:
-    return _paths(paper_rig())
+    """Every leaf parameter by dotted path (``"pad.stiffness_n_per_m"``) with its value (the
+    caller's own copy)."""
+    params = paper_rig() if params is None else params
+    base, paths = _PATHS.get(id(params), (None, None))
+    if base is not params:
+        if len(_PATHS) >= _MAX_KEPT:
+            _PATHS.clear()
+        paths = _paths(params)
+        _PATHS[id(params)] = (params, paths)
+    return dict(paths)
 
 
 def _paths(params: RigParams) -> dict[str, object]:
@@ -510,10 +521,9 @@ def typed_overrides(name: str, values: Mapping[str, object]) -> dict[str, object
     return out
 
 
-#: Rigs :func:`with_overrides` made, by (base rig, each override's path, type and repr): a
-#: campaign asks for the same few thousand times. The key tells 1 from 1.0 and True, -0.0 from 0.0.
-_OVERRIDDEN: dict[tuple, RigParams] = {}
-_MAX_OVERRIDDEN = 4096
+#: (a base rig's id, each override's path, type and repr) -> (the base, the rig made from it): the
+#: key tells 1 from 1.0 and True, and -0.0 from 0.0.
+_OVERRIDDEN: dict[tuple, tuple[RigParams, RigParams]] = {}
 
 
 def with_overrides(params: RigParams, overrides: Mapping[str, object]) -> RigParams:
@@ -522,12 +532,13 @@ def with_overrides(params: RigParams, overrides: Mapping[str, object]) -> RigPar
     validate.instance("overrides", overrides, Mapping)
     if not overrides:
         return params
-    key = (params, tuple((path, type(value), repr(value)) for path, value in overrides.items()))
-    made = _OVERRIDDEN.get(key)  # a rig's parts hold numbers, names and flags: it hashes
-    if made is None:
-        if len(_OVERRIDDEN) >= _MAX_OVERRIDDEN:
+    key = (id(params), tuple((path, type(value), repr(value)) for path, value in overrides.items()))
+    base, made = _OVERRIDDEN.get(key, (None, None))
+    if base is not params:
+        if len(_OVERRIDDEN) >= _MAX_KEPT:
             _OVERRIDDEN.clear()
-        _OVERRIDDEN[key] = made = _overridden(params, overrides)
+        made = _overridden(params, overrides)
+        _OVERRIDDEN[key] = (params, made)
     return made
 
 

@@ -8,6 +8,7 @@ sizes) and deployed as it was trained (:func:`deployed_controller`).
 
 from __future__ import annotations
 
+import copy
 import functools
 import hashlib
 import json
@@ -81,22 +82,19 @@ def check_controller_name(name: str, sensor_set: str = "extended") -> str:
 
 
 def _checked_card(folder: Path) -> dict[str, Any]:
-    """The card :func:`check_policy_folder` reads, read and checked once per version of the
-    folder's card and network (each file's size, modification time and inode): a campaign names
-    one policy in thousands of specs. :func:`load_policy` checks afresh."""
+    """The card :func:`check_policy_folder` reads (a copy), read and checked once per contents of
+    the folder (:func:`folder_digest`, which a spec computes anyway): a campaign names one policy
+    in thousands of specs. :func:`load_policy` checks afresh."""
     try:
-        stamp = tuple((s.st_size, s.st_mtime_ns, s.st_ino) for s in (folder.joinpath(f).stat() for f in STAMPED))
+        digest = folder_digest(folder)
     except OSError:  # check_policy_folder names what is missing
         return check_policy_folder(folder)[0]
-    return _checked_version(str(folder), stamp)
-
-
-#: The files :func:`_checked_card` tells a folder's versions by.
-STAMPED = (CARD_FILE, NETWORK_FILE)
+    return copy.deepcopy(_checked_contents(str(folder), digest))
 
 
 @functools.lru_cache(maxsize=256)
-def _checked_version(folder: str, stamp: tuple) -> dict[str, Any]:
+def _checked_contents(folder: str, digest: str) -> dict[str, Any]:
+    """The card of ``folder`` whose files hash to ``digest``, checked (the key: ``digest``)."""
     return check_policy_folder(folder)[0]
 
 

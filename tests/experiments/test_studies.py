@@ -67,9 +67,9 @@ def test_stored_study_rows_rerun_to_their_stored_values(study):
             stored = dict(_numbers(row[key]))
             # a percentage is a small difference of two large numbers: its last bits move with the
             # CPU's BLAS kernel (OpenBLAS's AVX-512 against its AVX2 one: 7e-13 pp, measured)
-            floor = 1e-9 if key.endswith("_pct") else 1e-15
+            abs_tol = 1e-9 if key.endswith("_pct") else 1e-15
             for place, value in _numbers(fresh):
-                assert math.isclose(value, stored[place], rel_tol=1e-9, abs_tol=floor), (study, key, place)
+                assert math.isclose(value, stored[place], rel_tol=1e-9, abs_tol=abs_tol), (study, key, place)
 
 
 @pytest.mark.parametrize("study", STUDIES)

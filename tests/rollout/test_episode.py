@@ -66,8 +66,9 @@ def test_a_drawn_schedule_runs_to_its_own_duration():
     assert trajectory.time_s[-1] == pytest.approx(drawn, abs=env.settings.control_period_s)
 
 
-#: Conditions 2 and 3 to just past their collisions (3.4 s; the second weight at 8.7 s, the
-#: collision at 10.1 s under pid-dom): the rest of the 30 s is the same steady hold.
+#: Conditions 2 and 3 to past their first collision and lift-off (condition 2: 3.4 and 4.6 s;
+#: condition 3 under pid-dom: the second weight at 8.7 s, the collision at 10.1 s, lift-off at
+#: 11.4 s). The later bounces of the 30 s run the same code paths again.
 CONDITION_2, CONDITION_3 = replace(CONDITIONS[2], duration_s=5.0), replace(CONDITIONS[3], duration_s=12.0)
 
 

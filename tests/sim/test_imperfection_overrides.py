@@ -161,16 +161,19 @@ def test_the_paper_rig_is_built_once_and_each_caller_gets_its_own_paths():
     assert paper_rig() == RigParams()
     rig = with_overrides(RigParams(), {"pad.damping_n_s_per_m": 150.0})
     assert with_overrides(rig, {}) is rig
+    mine = parameter_paths(rig)
+    mine["pad.damping_n_s_per_m"] = -1.0
+    assert parameter_paths(rig)["pad.damping_n_s_per_m"] == 150.0
 
 
 def test_an_override_asked_again_is_the_rig_made_before_and_tells_like_values_apart(monkeypatch):
     """A campaign asks ``with_overrides`` for the same rig thousands of times: it is made once, in
     a store of bounded size. Values equal in Python but not as overrides (1.0 and 1 or True; 0.0
-    and -0.0) are not confused."""
+    and -0.0) are not confused, nor an equal base rig with the one asked before."""
     from microg_env import params as module
 
     monkeypatch.setattr(module, "_OVERRIDDEN", {})
-    monkeypatch.setattr(module, "_MAX_OVERRIDDEN", 3)
+    monkeypatch.setattr(module, "_MAX_KEPT", 3)
     base = RigParams()
     made = with_overrides(base, {"pad.damping_n_s_per_m": 150.0})
     assert with_overrides(base, {"pad.damping_n_s_per_m": 150.0}) is made
@@ -182,4 +185,8 @@ def test_an_override_asked_again_is_the_rig_made_before_and_tells_like_values_ap
     zero = with_overrides(base, {"sensors.ruler_zero_offset_m": 0.0}).sensors.ruler_zero_offset_m
     negative = with_overrides(base, {"sensors.ruler_zero_offset_m": -0.0}).sensors.ruler_zero_offset_m
     assert (math.copysign(1.0, zero), math.copysign(1.0, negative)) == (1.0, -1.0)
+    equal = replace(base, sensors=replace(base.sensors, ruler_zero_offset_m=-0.0))  # == base, not base
+    assert equal == base
+    again = with_overrides(equal, {"pad.damping_n_s_per_m": 150.0})
+    assert math.copysign(1.0, again.sensors.ruler_zero_offset_m) == -1.0  # made from its own base
     assert len(module._OVERRIDDEN) <= 3

@@ -48,7 +48,7 @@ def test_flat_foot_makes_several_contact_points_throughout_the_impact():
 @pytest.mark.slow
 def test_static_sink_is_load_over_stiffness(load, stiffness, damping):
     params = replace(RigParams(), pad=PadParams(stiffness_n_per_m=stiffness, damping_n_s_per_m=damping))
-    # six decay times leave e^-6 = 0.25 % of the ringing: 0.10-0.15 % off (3e-4 after the default 12)
+    # six decay times leave e^-6 = 0.25 % of the ringing: 0.10-0.15 % off (0.03 % after the default 12)
     assert static_sink(params, load, settle_decays=6.0) == pytest.approx(load / stiffness, rel=0.005)
 
 
