@@ -25,7 +25,7 @@ from microg_env import validate
 from microg_env.controllers.base import Controller
 from microg_env.controllers.feedforward import AdaptiveFeedforward, DitheredAdaptiveFeedforward, Feedforward, Oracle
 from microg_env.controllers.pid import PID, load_gains
-from microg_env.controllers.policy import MLPPolicy, PolicyController
+from microg_env.controllers.policy import MAX_NETWORK_BYTES, MLPPolicy, PolicyController
 from microg_env.interface import (
     BASELINES,
     CARD_FILE,
@@ -85,9 +85,13 @@ def _checked_card(folder: Path) -> dict[str, Any]:
     """The card :func:`check_policy_folder` reads (a copy), read and checked once per contents of
     the folder (:func:`folder_digest`, which a spec computes anyway): a campaign names one policy
     in thousands of specs. :func:`load_policy` checks afresh."""
-    try:
-        digest = folder_digest(folder)
-    except OSError:  # check_policy_folder names what is missing
+    files = [folder / name for name in BEHAVIOUR_FILES]
+    try:  # only regular files of a policy's size are read whole: not a pipe, a device, a huge file
+        readable = all(f.is_file() and f.stat().st_size <= MAX_NETWORK_BYTES for f in files)
+        digest = folder_digest(folder) if readable else None
+    except OSError:
+        digest = None
+    if digest is None:  # check_policy_folder names what is wrong, or passes what is right
         return check_policy_folder(folder)[0]
     return copy.deepcopy(_checked_contents(str(folder), digest))
 
