@@ -15,8 +15,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from microg_env import validate
 
@@ -478,13 +479,19 @@ def parameter_paths(params: RigParams | None = None) -> dict[str, object]:
     """Every leaf parameter by dotted path (``"pad.stiffness_n_per_m"``) with its value (the
     caller's own copy)."""
     params = paper_rig() if params is None else params
-    base, paths = _PATHS.get(id(params), (None, None))
-    if base is not params:
-        if len(_PATHS) >= _MAX_KEPT:
-            _PATHS.clear()
-        paths = _paths(params)
-        _PATHS[id(params)] = (params, paths)
-    return dict(paths)
+    return dict(_kept(_PATHS, id(params), params, lambda: _paths(params)))
+
+
+def _kept(store: dict, key: Hashable, rig: RigParams, make: Callable[[], Any]) -> Any:
+    """What ``store`` holds at ``key`` if it was made from ``rig`` itself, else ``make()``, kept
+    there (the store emptied first once it holds :data:`_MAX_KEPT`)."""
+    base, made = store.get(key, (None, None))
+    if base is not rig:
+        if len(store) >= _MAX_KEPT:
+            store.clear()
+        made = make()
+        store[key] = (rig, made)
+    return made
 
 
 def _paths(params: RigParams) -> dict[str, object]:
@@ -533,13 +540,7 @@ def with_overrides(params: RigParams, overrides: Mapping[str, object]) -> RigPar
     if not overrides:
         return params
     key = (id(params), tuple((path, type(value), repr(value)) for path, value in overrides.items()))
-    base, made = _OVERRIDDEN.get(key, (None, None))
-    if base is not params:
-        if len(_OVERRIDDEN) >= _MAX_KEPT:
-            _OVERRIDDEN.clear()
-        made = _overridden(params, overrides)
-        _OVERRIDDEN[key] = (params, made)
-    return made
+    return _kept(_OVERRIDDEN, key, params, lambda: _overridden(params, overrides))
 
 
 def _overridden(params: RigParams, overrides: Mapping[str, object]) -> RigParams:
