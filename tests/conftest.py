@@ -21,6 +21,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 GROUPS = {
     "tests/experiments/test_experiments.py": "ray",
     "tests/rollout/test_processes.py::test_a_killed_campaign_leaves_no_ray_process_behind_and_resumes_whole": "ray",
+    "tests/rollout/test_processes.py::test_a_campaign_stopped_by_sigterm_runs_only_what_is_missing": "ray",
     **{
         path: path
         for path in (
@@ -65,15 +66,25 @@ def pytest_configure(config: pytest.Config) -> None:
     tests import) and in a process started outside the tree (the installed copy, which commands run
     from other folders import). On a fresh clone every process that found a cache empty compiled the
     kernels itself, about 13 CPU-seconds each: the workers, and the commands, Ray workers and
-    process pools the tests start."""
+    process pools the tests start. The two copies compile side by side, one a core."""
     if hasattr(config, "workerinput"):
         _pin_worker(config.workerinput)
         return
     if not getattr(config.option, "numprocesses", None):
         return
-    exec(WARM_UP, {})
     with tempfile.TemporaryDirectory() as folder:
-        subprocess.run([sys.executable, "-c", WARM_UP], cwd=folder, check=True, capture_output=True, timeout=600)
+        outside = subprocess.Popen(
+            [sys.executable, "-c", WARM_UP], cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        )
+        try:
+            exec(WARM_UP, {})
+            _, errors = outside.communicate(timeout=600)
+        finally:
+            if outside.poll() is None:
+                outside.kill()
+                outside.wait()
+        if outside.returncode:
+            raise subprocess.CalledProcessError(outside.returncode, outside.args, stderr=errors)
 
 
 def _pin_worker(workerinput: dict) -> None:
@@ -86,6 +97,15 @@ def _pin_worker(workerinput: dict) -> None:
     cores = sorted(os.sched_getaffinity(0))
     if len(cores) > 1:
         os.sched_setaffinity(0, {cores[int(number) % len(cores)]})
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """In a pytest-xdist worker: the ungrouped tests marked ``slow`` before the other ungrouped
+    ones, each set in its order. pytest-xdist deals out the groups first (the largest first), then
+    the single tests in this order: quick tests, not a 25-second tutorial, end the run on both
+    workers. (Each worker reorders its own identical collection alike.)"""
+    if hasattr(config, "workerinput"):
+        items.sort(key=lambda item: group_of(item.nodeid) is None and item.get_closest_marker("slow") is None)
 
 
 @pytest.hookimpl(optionalhook=True)  # a run without pytest-xdist has no such hook

@@ -113,10 +113,10 @@ def test_returns_table_reads_a_cards_left_out_acting_key_as_its_default(tmp_path
 
 @pytest.mark.slow
 def test_the_aligned_residual_task_ranks_the_ladder_as_its_metric_does(monkeypatch):
-    """training/reward_ladder.py on 6 of v7's draws: its return ranks the nine rungs as x at the
+    """training/reward_ladder.py on 4 of v7's draws: its return ranks the nine rungs as x at the
     collision does (Spearman >= 0.9), where v6's x0 of 10 nm does not, on the same rollouts. The
     return it scores offline from x at every period is the one the environment pays (the zero
-    residual and the shipped policy, on the first seed and on one whose last step is short)."""
+    residual on the first seed, the shipped policy on the first seed whose last step is short)."""
     import gymnasium as gym
 
     from microg_env.task import TaskSettings
@@ -127,7 +127,7 @@ def test_the_aligned_residual_task_ranks_the_ladder_as_its_metric_does(monkeypat
     ids, policy = ("MicroGravityLanding-Residual-v6", "MicroGravityLanding-Residual-v7"), "residual-sac-setpoint"
     scales = [gym.spec(env_id).kwargs.get("reward_scale_m", TaskSettings().reward_scale_m) for env_id in ids]
     assert scales == [1e-8, 1e-6]
-    rungs = ladder.run_ladder(ids[1], policy, range(1000, 1006))
+    rungs = ladder.run_ladder(ids[1], policy, range(1000, 1004))
     assert len(rungs) == 9
     result = ladder.report(ids[1], policy, rungs, scales)["by_scale"]
     assert result["1e-08"]["spearman"] < 0.9
@@ -136,11 +136,10 @@ def test_the_aligned_residual_task_ranks_the_ladder_as_its_metric_does(monkeypat
     by_name = {rung.name: rung for rung in rungs}
     # the first seed whose last step runs fewer than 5 periods (the environment pays their mean)
     short = next(i for i, x in enumerate(by_name[f"{policy} x1"].x_m) if x.size % 5)
-    for name, act in (
-        ("adaptive-dither (zero residual)", lambda obs: np.zeros(1, dtype=np.float32)),
-        (f"{policy} x1", returns_table.policy_actor(ids[1], policy)),
+    for name, act, i in (
+        ("adaptive-dither (zero residual)", lambda obs: np.zeros(1, dtype=np.float32), 0),
+        (f"{policy} x1", returns_table.policy_actor(ids[1], policy), short),
     ):
         offline = by_name[name].returns(1e-6, env.unwrapped.core.x_limit_m, 5, contact_only=False)
-        for i in (0, short):
-            assert offline[i] == pytest.approx(returns_table.episode_return(env, act, 1000 + i), rel=1e-9), (name, i)
+        assert offline[i] == pytest.approx(returns_table.episode_return(env, act, 1000 + i), rel=1e-9), (name, i)
     assert ladder.spearman([1, 2, 3, 4], [10, 20, 30, 25]) == pytest.approx(0.8)

@@ -482,67 +482,6 @@ def test_a_folder_kept_with_its_table_alone_resumes_from_it(tmp_path):
     assert ResultStore(tmp_path).statuses() == {specs[0].hash: "ok", specs[1].hash: "ok"}
 
 
-CAMPAIGN_36 = """\
-name: resume-test
-base: {scenario: condition-2, duration_s: 0.2}
-sweep:
-  qzs.guide_friction_n, qzs.guide_static_friction_n: [[0.1, 0.125], [0.3, 0.375], [0.5, 0.625]]
-  controller: [pid, feedforward, residual-ppo]
-  control_period_us: [1000, 500]
-seeds: {first: 0, count: 2}
-batch_size: 4
-"""
-
-
-@pytest.mark.slow
-def test_a_campaign_of_36_runs_on_local_ray_is_interrupted_and_resumed_with_nothing_recomputed(tmp_path):
-    """36 runs (6 of them fail: residual-ppo refuses 500 us). Ctrl-C after the first stored batch
-    exits 130 with every finished row kept; the same command then runs only what is missing, and
-    the table holds one row per run with every metric."""
-    path, out = tmp_path / "c.yml", tmp_path / "out"
-    path.write_text(CAMPAIGN_36)
-    command = [*MICROG, "campaign", str(path), "--out", str(out), "--json", "--quiet"]
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while not list((out / "runs").glob("part-*.parquet")) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=120)
-    assert process.returncode == 130, stderr
-    assert "interrupted" in stderr
-    assert "Traceback" not in stderr
-    before = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("part-*.parquet")}
-    stored = ResultStore(out).statuses()
-    assert 0 < len(stored) < 36
-    assert not list((out / "runs").glob(".*"))  # no half-written file
-
-    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr
-    summary = json.loads(done.stdout)
-    stored_ok = sum(status == "ok" for status in stored.values())
-    assert summary["runs"] == 36
-    assert summary["skipped"] == stored_ok
-    assert summary["done"] + summary["failed"] == 36 - stored_ok
-    assert summary["failed"] == 6
-    for name, mtime in before.items():  # nothing stored was rewritten
-        assert (out / "runs" / name).stat().st_mtime_ns == mtime
-    table = pq.read_table(out / "results.parquet")
-    assert table.num_rows == 36
-    assert len(set(table.column("spec_hash").to_pylist())) == 36
-    for name in [*RunMetrics.__dataclass_fields__, "qzs.guide_friction_n", "controller", "control_period_us"]:
-        assert name in table.column_names
-    rows = table.to_pylist()
-    failed = [r for r in rows if r["status"] == "failed"]
-    assert len(failed) == 6
-    assert all("1000 us" in r["error"] for r in failed)
-    assert all(r["controller"] == "residual-ppo" and r["control_period_us"] == 500 for r in failed)
-    ok = [r for r in rows if r["status"] == "ok"]
-    assert all(np.isfinite(r["flexible_unit_excursion_free_fall_m"]) for r in ok)
-
-    again = subprocess.run(command, capture_output=True, text=True, timeout=600)
-    assert json.loads(again.stdout)["skipped"] == 30  # the failed runs are tried again
-
-
 def test_ctrl_c_while_ray_waits_stops_the_campaign_and_keeps_every_finished_task(tmp_path, monkeypatch):
     """Ctrl-C arrives inside ``ray.wait`` just as a task finishes, and the KeyboardInterrupt raised
     there is dropped, as Ray's own signal check can do (CI saw the campaign run on to exit 0). The
@@ -886,35 +825,6 @@ def test_campaign_files_refuse_a_key_given_twice_and_read_exponents_as_numbers(t
         "name: t\nbase: {scenario: condition-2, duration_s: 0.3}\nsweep:\n  overrides.sensors.ruler_noise_m: [5e-9]\n"
     )
     assert Campaign.load(path).sweep == {"overrides.sensors.ruler_noise_m": [5e-9]}  # YAML 1.1 read "5e-9"
-
-
-@pytest.mark.slow
-def test_a_campaign_on_its_own_local_ray_removes_that_instances_session_folder(tmp_path):
-    """Each campaign used to leave its local Ray instance's session folder (logs) in the system's
-    temporary directory. In a process of its own, as every campaign test here starts Ray."""
-    path, out = tmp_path / "c.yml", tmp_path / "out"
-    path.write_text("name: tidy\nbase: {scenario: condition-2, duration_s: 0.3}\nsweep: {controller: [pid]}\n")
-    script = (
-        "import json, sys, ray\n"
-        "from pathlib import Path\n"
-        "from microg_env.experiments import distributed\n"
-        "from microg_env.experiments.campaign import Campaign\n"
-        "sessions, start = [], ray.init\n"
-        "def init(**kwargs):\n"
-        "    context = start(**kwargs)\n"
-        "    sessions.append(context.address_info['session_dir'])\n"
-        "    return context\n"
-        "ray.init = init\n"
-        "summary = distributed.execute(Campaign.load(sys.argv[1]), sys.argv[2], num_cpus=1)\n"
-        "print(json.dumps({'done': summary.done, 'sessions': sessions}))\n"
-    )
-    command = [sys.executable, "-c", script, str(path), str(out)]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-    result = json.loads(done.stdout.strip().splitlines()[-1])
-    assert result["done"] == 1
-    assert len(result["sessions"]) == 1
-    assert not Path(result["sessions"][0]).exists()
 
 
 def test_a_driver_refused_the_lock_leaves_the_other_drivers_new_folder(tmp_path, monkeypatch):

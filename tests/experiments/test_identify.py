@@ -15,9 +15,9 @@ from microg_env.rollout.spec import RunSpec
 TOLERANCES = {"servo.speed_loop_gain_hz": ("relative", 1e-3), "sensors.ruler_zero_offset_m": ("m", 1e-7)}
 
 
-@pytest.mark.parametrize("draw", range(5))
+@pytest.mark.parametrize("draw", range(3))
 def test_identify_recovers_a_hidden_drive_and_ruler_zero_within_the_stated_tolerances(draw):
-    """Five hidden rigs, each logged with its own seed, fitted from the paper's rig on 1 s of free
+    """Three hidden rigs, each logged with its own seed, fitted from the paper's rig on 1 s of free
     fall (the replay's own draws, seed 0, differ from the log's, as a real rig's do)."""
     rng = np.random.default_rng(draw)
     hidden = {
@@ -34,4 +34,4 @@ def test_identify_recovers_a_hidden_drive_and_ruler_zero_within_the_stated_toler
         unit = abs(truth) if kind == "relative" else 1.0
         assert abs(result.values[name] - truth) <= tolerance * unit, (name, truth, result.values[name])
     for channel in ("ruler_m", "encoder_m"):  # the identified rig replays the log to about its noise
-        assert result.rms[channel] < 1.3 * result.noise[channel], channel  # measured 1.03-1.25
+        assert result.rms[channel] < 1.3 * result.noise[channel], channel  # measured 1.03-1.24

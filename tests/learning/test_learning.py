@@ -1059,11 +1059,11 @@ def test_validation_on_the_residual_task_drives_a_speed_environment(env_id):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL])
-def test_a_run_killed_in_its_final_evaluation_is_finished_by_a_resume(tmp_path, signum):
-    """SIGTERM (stopped as Ctrl-C stops it) or SIGKILL (no handler runs) while the run, checkpointed
-    at its target, evaluates its last model: ``--resume`` at the same target evaluates and exports
-    what is missing."""
+def test_a_run_killed_in_its_final_evaluation_is_finished_by_a_resume(tmp_path):
+    """SIGKILL (no handler runs) while the run, checkpointed at its target, evaluates its last
+    model: ``--resume`` at the same target evaluates and exports what is missing. (SIGTERM is the
+    command line's Ctrl-C, tests/rollout/test_processes.py; a Ctrl-C there is
+    test_a_run_stopped_in_its_final_evaluation_is_finished_by_a_resume.)"""
     logs = tmp_path / "logs"
     command = [sys.executable, "-m", "microg_env.cli", "train", "-conf", str(_tiny_hyperparams(tmp_path, "ppo"))]
     command += ["--timesteps", "128", "--eval-freq", "100000", "--eval-episodes", "1", "--checkpoint-freq", "100000"]
@@ -1080,7 +1080,7 @@ def test_a_run_killed_in_its_final_evaluation_is_finished_by_a_resume(tmp_path, 
             break  # in the end-of-run evaluation
         time.sleep(0.01)
     assert process.poll() is None, "the run ended before it could be stopped in its final evaluation"
-    process.send_signal(signum)
+    process.send_signal(signal.SIGKILL)
     process.wait(timeout=60)
     folder = latest.parents[1]
     assert not (folder / "policy").exists()

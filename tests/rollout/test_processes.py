@@ -1,9 +1,10 @@
 """A killed command leaves no process behind, and runs again whole (issue #44).
 
 ``microg reproduce`` and ``microg compare`` run on process pools whose workers fork from a fork
-server; ``microg campaign`` on a local Ray instance. Each is killed (SIGKILL; SIGTERM and SIGINT,
-which stop it as Ctrl-C does) in a session of its own while its workers run; no process of that
-session may be alive 10 s later, and the same command then writes every row once.
+server; ``microg campaign`` on a local Ray instance. Each is killed (SIGKILL; SIGTERM, which the
+command line turns into Ctrl-C's KeyboardInterrupt) in a session of its own while its workers run;
+no process of that session may be alive 10 s later, and the same command then writes every row
+once.
 ``run_all(workers > 1)`` in a script its workers cannot import says what to do in one line.
 """
 
@@ -17,11 +18,14 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 import microg_env
+from microg_env.analysis.metrics import RunMetrics
 from microg_env.cli import main
+from microg_env.experiments.store import ResultStore
 
 #: The tree of the package under test: the commands run from it.
 TREE = Path(microg_env.__file__).resolve().parents[1]
@@ -39,6 +43,31 @@ base: {scenario: condition-2, duration_s: 0.3}
 sweep: {controller: [pid, feedforward, pid-dom]}
 seeds: {first: 0, count: 4}
 batch_size: 1
+"""
+CAMPAIGN_36 = """\
+name: resume-test
+base: {scenario: condition-2, duration_s: 0.2}
+sweep:
+  qzs.guide_friction_n, qzs.guide_static_friction_n: [[0.1, 0.125], [0.3, 0.375], [0.5, 0.625]]
+  controller: [pid, feedforward, residual-ppo]
+  control_period_us: [1000, 500]
+seeds: {first: 0, count: 2}
+batch_size: 4
+"""
+#: A campaign run by ``distributed.execute`` on a local Ray instance of its own (one CPU), printing
+#: its summary and the session folder of each Ray instance it started.
+SESSIONS_SEEN = """\
+import json, sys, ray
+from microg_env.experiments import distributed
+from microg_env.experiments.campaign import Campaign
+sessions, start = [], ray.init
+def init(**kwargs):
+    context = start(**kwargs)
+    sessions.append(context.address_info["session_dir"])
+    return context
+ray.init = init
+summary = distributed.execute(Campaign.load(sys.argv[1]), sys.argv[2], num_cpus=1)
+print(json.dumps({"skipped": summary.skipped, "sessions": sessions}))
 """
 UNGUARDED = """\
 from microg_env.rollout.runner import run_all
@@ -108,13 +137,18 @@ def _kill(command: list[str], number: int, ready: Callable[[int], bool], folder:
                 os.kill(pid, signal.SIGKILL)
 
 
+def _stored(out: Path) -> Callable[[int], bool]:
+    """Whether a campaign writing to ``out`` has stored a part."""
+    return lambda pid: any((out / "runs").glob("part-*.parquet"))
+
+
 def _pool_running(pid: int) -> bool:
     """A pool worker runs in the session that ``pid`` leads."""
     return bool(_pool_workers(session=pid))
 
 
 def _check_exit(code: int, stderr: str, number: int) -> None:
-    """SIGKILL ends a command where it is; SIGTERM and SIGINT stop it as Ctrl-C does."""
+    """SIGKILL ends a command where it is; SIGTERM stops it as Ctrl-C does."""
     if number == signal.SIGKILL:
         assert code == -signal.SIGKILL
     else:  # one line, no traceback, no stack dump
@@ -124,7 +158,7 @@ def _check_exit(code: int, stderr: str, number: int) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("number", [*KILLS, signal.SIGINT], ids=lambda number: signal.Signals(number).name)
+@pytest.mark.parametrize("number", KILLS, ids=lambda number: signal.Signals(number).name)
 def test_a_killed_reproduce_leaves_no_process_behind_and_runs_again_whole(tmp_path, number):
     results = tmp_path / "results"
     results.mkdir()
@@ -144,7 +178,7 @@ def test_a_killed_reproduce_leaves_no_process_behind_and_runs_again_whole(tmp_pa
 
 @pytest.mark.slow
 def test_a_killed_compare_leaves_no_process_behind_and_runs_again_whole(tmp_path):
-    """SIGKILL; SIGTERM and SIGINT take reproduce's path (the pool's block left by KeyboardInterrupt)."""
+    """SIGKILL; SIGTERM takes reproduce's path (the pool's block left by KeyboardInterrupt)."""
     results = tmp_path / "results"
     results.mkdir()
     out = results / "comparison"
@@ -164,21 +198,78 @@ def test_a_killed_compare_leaves_no_process_behind_and_runs_again_whole(tmp_path
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("number", KILLS, ids=lambda number: signal.Signals(number).name)
-def test_a_killed_campaign_leaves_no_ray_process_behind_and_resumes_whole(tmp_path, number):
-    """Ray's agents used to outlive a SIGKILLed driver by a minute; SIGTERM printed Ray's stack dump."""
+def test_a_killed_campaign_leaves_no_ray_process_behind_and_resumes_whole(tmp_path):
+    """Ray's agents used to outlive a SIGKILLed driver by a minute. (SIGTERM, which printed Ray's
+    stack dump, is the next test's.)"""
     spec, out = tmp_path / "c.yml", tmp_path / "out"
     spec.write_text(CAMPAIGN)
     command = [*MICROG, "campaign", str(spec), "--out", str(out), "--num-cpus", "1", "--quiet"]
-    code, stderr, left = _kill(command, number, lambda pid: any((out / "runs").glob("part-*.parquet")), tmp_path)
+    code, stderr, left = _kill(command, signal.SIGKILL, _stored(out), tmp_path)
     assert left == {}
-    _check_exit(code, stderr, number)
+    _check_exit(code, stderr, signal.SIGKILL)
     again = subprocess.run([*command, "--json"], cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr[-3000:]
     table = pq.read_table(out / "results.parquet")
     assert table.num_rows == 12
     assert len(set(table.column("spec_hash").to_pylist())) == 12
     assert set(table.column("status").to_pylist()) == {"ok"}
+
+
+@pytest.mark.slow
+def test_a_campaign_stopped_by_sigterm_runs_only_what_is_missing(tmp_path):
+    """36 runs (6 of them fail: residual-ppo refuses 500 us). SIGTERM (Ctrl-C's path; it used to
+    print Ray's stack dump) after the first stored batch: exit 130 in one line, no process of its
+    session left, every finished row kept, no half-written file. The same command then runs only
+    what is missing, and the table holds one row per run with every metric. A third start, on a
+    local Ray instance of its own, tries the failed runs again and removes that instance's session
+    folder (each campaign used to leave it in the system's temporary directory)."""
+    path, out = tmp_path / "c.yml", tmp_path / "out"
+    path.write_text(CAMPAIGN_36)
+    command = [*MICROG, "campaign", str(path), "--out", str(out), "--json", "--quiet"]
+    code, stderr, left = _kill(command, signal.SIGTERM, _stored(out), tmp_path)
+    assert left == {}
+    _check_exit(code, stderr, signal.SIGTERM)
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("part-*.parquet")}
+    stored = ResultStore(out).statuses()
+    assert 0 < len(stored) < 36
+    assert not list((out / "runs").glob(".*"))  # no half-written file
+
+    done = subprocess.run(command, cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    stored_ok = sum(status == "ok" for status in stored.values())
+    assert summary["runs"] == 36
+    assert summary["skipped"] == stored_ok
+    assert summary["done"] + summary["failed"] == 36 - stored_ok
+    assert summary["failed"] == 6
+    for name, mtime in before.items():  # nothing stored was rewritten
+        assert (out / "runs" / name).stat().st_mtime_ns == mtime
+    table = pq.read_table(out / "results.parquet")
+    assert table.num_rows == 36
+    assert len(set(table.column("spec_hash").to_pylist())) == 36
+    for name in [*RunMetrics.__dataclass_fields__, "qzs.guide_friction_n", "controller", "control_period_us"]:
+        assert name in table.column_names
+    rows = table.to_pylist()
+    failed = [r for r in rows if r["status"] == "failed"]
+    assert len(failed) == 6
+    assert all("1000 us" in r["error"] for r in failed)
+    assert all(r["controller"] == "residual-ppo" and r["control_period_us"] == 500 for r in failed)
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert all(np.isfinite(r["flexible_unit_excursion_free_fall_m"]) for r in ok)
+
+    again = subprocess.run(
+        [sys.executable, "-c", SESSIONS_SEEN, str(path), str(out)],
+        cwd=tmp_path,
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert again.returncode == 0, again.stderr
+    result = json.loads(again.stdout.strip().splitlines()[-1])
+    assert result["skipped"] == 30  # the failed runs are tried again
+    assert len(result["sessions"]) == 1
+    assert not Path(result["sessions"][0]).exists()
 
 
 @pytest.mark.slow
