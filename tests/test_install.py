@@ -61,9 +61,10 @@ def test_wheel_contains_the_hyperparameters_and_the_shipped_policy(wheel):
 
 
 def _fresh_venv(env_dir: Path, install: list[str], cwd: Path) -> Path:
-    """A new virtual environment with ``pip install --no-deps --no-index <install>`` done first,
-    then the running environment's packages borrowed for the dependencies; returns its bin folder."""
-    venv.create(env_dir, with_pip=True)
+    """A new virtual environment with ``pip install --no-deps --no-index <install>`` done first (by
+    the running environment's pip: the new one needs none of its own), then the running
+    environment's packages borrowed for the dependencies; returns its bin folder."""
+    venv.create(env_dir, with_pip=False)
     bindir = env_dir / ("Scripts" if sys.platform == "win32" else "bin")
     python = bindir / "python"
     purelib = subprocess.run(
@@ -74,7 +75,7 @@ def _fresh_venv(env_dir: Path, install: list[str], cwd: Path) -> Path:
     ).stdout.strip()
     # Install first: with the borrowed folders visible, pip would find microg-env "already there".
     subprocess.run(
-        [str(python), "-m", "pip", "install", "--no-deps", "--no-index", "-q", *install],
+        [sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps", "--no-index", "-q", *install],
         check=True,
         capture_output=True,
         cwd=cwd,
