@@ -55,7 +55,9 @@ def test_every_file_whose_tests_share_a_module_fixture_runs_on_one_worker():
         assert (REPO / path).is_file(), entry
         assert not name or re.search(rf"^def {name}\(", (REPO / path).read_text(encoding="utf-8"), re.M), entry
     name = "tests/rollout/test_processes.py::test_a_killed_campaign_leaves_no_ray_process_behind_and_resumes_whole"
-    assert conftest.group_of(f"{name}[SIGKILL]") == "ray"
+    assert conftest.group_of(name) == "ray"
+    assert conftest.group_of(f"{name}[SIGKILL]") == "ray"  # a parametrisation of it
+    assert conftest.group_of(f"{name}_too") is None
     assert conftest.group_of(f"{name}_too[SIGKILL]") is None
     assert conftest.group_of("tests/test_install.py::test_wheel") == "tests/test_install.py"
     assert conftest.group_of("tests/test_install2.py::test_wheel") is None

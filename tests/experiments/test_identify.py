@@ -15,6 +15,7 @@ from microg_env.rollout.spec import RunSpec
 TOLERANCES = {"servo.speed_loop_gain_hz": ("relative", 1e-3), "sensors.ruler_zero_offset_m": ("m", 1e-7)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("draw", range(3))
 def test_identify_recovers_a_hidden_drive_and_ruler_zero_within_the_stated_tolerances(draw):
     """Three hidden rigs, each logged with its own seed, fitted from the paper's rig on 1 s of free

@@ -1062,7 +1062,7 @@ def test_validation_on_the_residual_task_drives_a_speed_environment(env_id):
 def test_a_run_killed_in_its_final_evaluation_is_finished_by_a_resume(tmp_path):
     """SIGKILL (no handler runs) while the run, checkpointed at its target, evaluates its last
     model: ``--resume`` at the same target evaluates and exports what is missing. (SIGTERM is the
-    command line's Ctrl-C, tests/rollout/test_processes.py; a Ctrl-C there is
+    command line's Ctrl-C, tests/rollout/test_processes.py; a Ctrl-C in that evaluation is
     test_a_run_stopped_in_its_final_evaluation_is_finished_by_a_resume.)"""
     logs = tmp_path / "logs"
     command = [sys.executable, "-m", "microg_env.cli", "train", "-conf", str(_tiny_hyperparams(tmp_path, "ppo"))]
