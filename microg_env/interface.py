@@ -92,9 +92,19 @@ MIXED_SENSORS = "mixed"
 #: maximum (Section 4.1), a fixed unit of the action whatever rig is simulated (a slower drive
 #: saturates on its own).
 MAX_SPEED_M_S = ScrewStageParams().max_speed_m_per_s
-#: What an action is: the drive's speed reference (``speed``) or an x setpoint on a base
-#: controller (``residual``).
-ACTION_MODES = ("speed", "residual")
+#: What an action is: the drive's speed reference (``speed``), an x setpoint on a base
+#: controller (``residual``), or the gains of a base PID (``gains``).
+ACTION_MODES = ("speed", "residual", "gains")
+#: The base controllers whose gains a ``gains`` action schedules: the PIDs (Section 3.1).
+GAIN_BASES = ("pid", "pid-dom")
+#: The gains a ``gains`` action multiplies, one action component each, in this order.
+SCHEDULED_GAINS = ("kp_per_s", "ki_per_s2", "kd")
+#: The multiplier that the action +-1 stands for in the ``gains`` action mode (the environment's
+#: ``gain_limit``): a component a multiplies its gain by gain_limit ** a. 2 by default, the gain
+#: margin the PIDs were tuned to on the nominal rig (config/controllers.toml); on a drawn plant
+#: every gain doubled at once can be unstable (docs/environment.md, "Gain actions"), so the task
+#: holds schedules the learner must avoid. At most 10.
+GAIN_LIMIT, MAX_GAIN_LIMIT = 2.0, 10.0
 #: The reward's descent term (the environment's ``reward_descent_weight``): the velocity error of
 #: each stage's descent against the ideal m g / (M + m) from the descent fit's start on
 #: (:func:`~microg_env.envs.period.score_descent`), scored in decades as x is, from
@@ -227,22 +237,34 @@ def residual_gate(gate_m: object) -> float | None:
 
 
 def gated_actions(actions: np.ndarray, observations: np.ndarray, gate_m: float | None) -> np.ndarray:
-    """Residual ``actions`` (or setpoints) as a gate at foot height ``gate_m`` passes them: each
-    rig's value while its foot reads at most ``gate_m`` above the pad (``observations``' height
-    entry: the servo encoder and the grating ruler, a reading of the paper's rig as well), else 0,
-    so that the base controller alone flies the descent above it; ``actions`` themselves without a
-    gate. The gate is
-    compared in the observation's own float32 units (whatever array holds the readings), so a foot
-    exactly at the gate reads at it."""
+    """Residual ``actions`` (or setpoints, (n,)) or gains actions ((n, 3)) as a gate at foot height
+    ``gate_m`` passes them: each rig's value while its foot reads at most ``gate_m`` above the pad
+    (``observations``' height entry: the servo encoder and the grating ruler, a reading of the
+    paper's rig as well), else 0, so that the base controller alone (as tuned) flies the descent
+    above it; ``actions`` themselves without a gate. The gate is compared in the observation's own
+    float32 units (whatever array holds the readings), so a foot exactly at the gate reads at it."""
     if gate_m is None:
         return actions
     heights = np.asarray(observations[:, OBSERVATION_INDEX["height"]], dtype=np.float32)
-    return np.where(heights <= np.float32(gate_m / OBSERVATION_SCALES["height"]), actions, 0.0)
+    passes = heights <= np.float32(gate_m / OBSERVATION_SCALES["height"])
+    return np.where(passes[:, None] if np.ndim(actions) == 2 else passes, actions, 0.0)
 
 
-def action_space() -> spaces.Box:
-    """One rig's action: the drive's speed reference or the residual x setpoint, in units above."""
-    return spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+def action_size(action_mode: str) -> int:
+    """How many numbers one rig's action holds: a gain per :data:`SCHEDULED_GAINS` in ``gains``
+    mode, else one (the drive's speed reference or the residual x setpoint)."""
+    return len(SCHEDULED_GAINS) if action_mode == "gains" else 1
+
+
+def action_space(action_mode: str = "speed") -> spaces.Box:
+    """One rig's action in ``action_mode``, in [-1, 1] (:func:`action_size` numbers, units above)."""
+    return spaces.Box(-1.0, 1.0, shape=(action_size(action_mode),), dtype=np.float32)
+
+
+def gain_scales(actions: np.ndarray, limit: float) -> np.ndarray:
+    """The gain multipliers that ``gains`` actions (n, 3) in [-1, 1] stand for: ``limit ** action``,
+    so an action of 0 is exactly the base PID (a multiplier of exactly 1)."""
+    return np.power(limit, np.asarray(actions, dtype=np.float64))
 
 
 def observation_space() -> spaces.Box:

@@ -19,6 +19,9 @@ from microg_env.interface import (
     ACTION_MODES,
     BASELINES,
     DESCENT_SCALE_M_S,
+    GAIN_BASES,
+    GAIN_LIMIT,
+    MAX_GAIN_LIMIT,
     MIXED_SENSORS,
     RESIDUAL_HIGHPASS_RANGE_HZ,
     RESIDUAL_LIMIT_M,
@@ -45,12 +48,13 @@ from microg_env.validate import FieldError
 @dataclass(frozen=True)
 class ActingSettings:
     """How a policy acts on the rig, one record checked once when made: what its action means (the
-    drive's speed command, or a setpoint for x that a classical ``base_controller`` holds, scaled to
-    ``residual_limit_m``), how often it acts (every ``decision_period`` control periods), how the
-    residual is high-passed (a corner and one or two stages) and gated (acting only while the foot
-    reads at most ``residual_gate_m`` high, the gate on the action or the setpoint), and the
-    observation entries it reads as 0. The environment (:class:`TaskSettings`), the policy loader
-    and the policy cards read it; its fields are the cards' :data:`ACTING_KEYS`."""
+    drive's speed command, a setpoint for x that a classical ``base_controller`` holds, scaled to
+    ``residual_limit_m``, or multipliers of a base PID's gains up to ``gain_limit``), how often it
+    acts (every ``decision_period`` control periods), how the residual is high-passed (a corner and
+    one or two stages) and gated (acting only while the foot reads at most ``residual_gate_m`` high,
+    the gate on the action or the setpoint), and the observation entries it reads as 0. The
+    environment (:class:`TaskSettings`), the policy loader and the policy cards read it; its fields
+    are the cards' :data:`ACTING_KEYS`."""
 
     action_mode: str = "speed"
     base_controller: str = "pid"
@@ -60,6 +64,7 @@ class ActingSettings:
     residual_highpass_order: int = 1
     residual_gate_m: float | None = None
     residual_gate_on: str = "action"
+    gain_limit: float = GAIN_LIMIT
     hidden_observations: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
@@ -81,15 +86,23 @@ class ActingSettings:
                 f"residual_gate_on {self.residual_gate_on!r}: there is no gate to place (residual_gate_m is None)",
                 "residual_gate_on",
             )
-        if self.action_mode != "residual":  # a speed action has no base, and no residual to scale, filter or gate
-            for option in fields(ActingSettings):
-                residual = option.name.startswith("residual_") or option.name == "base_controller"
-                if residual and getattr(self, option.name) != option.default:
-                    raise FieldError(
-                        f"{option.name} {getattr(self, option.name)!r}: only action_mode='residual' has a base "
-                        f"controller and a residual (action_mode is {self.action_mode!r})",
-                        option.name,
-                    )
+        put("gain_limit", validate.between("gain_limit", self.gain_limit, 1.0, MAX_GAIN_LIMIT))
+        if self.gain_limit == 1.0:
+            raise FieldError("gain_limit 1.0: the action would move no gain (it must be above 1)", "gain_limit")
+        if self.action_mode == "gains" and self.base_controller not in GAIN_BASES:
+            raise FieldError(
+                f"base_controller {self.base_controller!r}: action_mode='gains' schedules the gains of "
+                f"{' or '.join(GAIN_BASES)}",
+                "base_controller",
+            )
+        for option in fields(ActingSettings):  # the options of the other action modes keep their defaults
+            mode = _OPTION_MODES.get(option.name)
+            if mode is not None and self.action_mode not in mode and getattr(self, option.name) != option.default:
+                raise FieldError(
+                    f"{option.name} {getattr(self, option.name)!r}: only action_mode {' or '.join(map(repr, mode))} "
+                    f"has it (action_mode is {self.action_mode!r})",
+                    option.name,
+                )
         if self.residual_highpass_order != 1 and self.residual_highpass_hz == 0.0:
             raise FieldError(
                 f"residual_highpass_order {self.residual_highpass_order!r}: there is no high-pass to cascade "
@@ -104,6 +117,13 @@ class ActingSettings:
         return cls(**{name: settings[name] for name in ACTING_KEYS if name in settings})
 
 
+#: The action modes that read each option of :class:`ActingSettings` (the options not named read by every mode).
+_OPTION_MODES = {
+    "base_controller": ("residual", "gains"),
+    "gain_limit": ("gains",),
+    **{option.name: ("residual",) for option in fields(ActingSettings) if option.name.startswith("residual_")},
+    "residual_gate_m": ("residual", "gains"),  # a gains action is gated as a residual is
+}
 #: The settings that say how a policy acts: :class:`ActingSettings`' fields.
 ACTING_KEYS = tuple(option.name for option in fields(ActingSettings))
 

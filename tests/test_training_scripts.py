@@ -72,7 +72,7 @@ def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):
     monkeypatch.syspath_prepend(str(TRAINING))
     returns_table = importlib.import_module("returns_table")
     newest_first = tuple(f"MicroGravityLanding-Residual-v{v}" for v in (7, 6, 5, 4, 3, 2, 1))
-    assert newest_first == returns_table.ENV_IDS
+    assert (*newest_first, "MicroGravityLanding-GainScheduling-v1") == returns_table.ENV_IDS
     returns_table.policy_actor("MicroGravityLanding-Residual-v4", "residual-sac-adaptive")
     returns_table.policy_actor("MicroGravityLanding-Residual-v6", "residual-sac-setpoint")
     with pytest.raises(ValueError, match="trained with residual_gate_on 'action'"):
@@ -143,3 +143,33 @@ def test_the_aligned_residual_task_ranks_the_ladder_as_its_metric_does(monkeypat
         offline = by_name[name].returns(1e-6, env.unwrapped.core.x_limit_m, 5, contact_only=False)
         assert offline[i] == pytest.approx(returns_table.episode_return(env, act, 1000 + i), rel=1e-9), (name, i)
     assert ladder.spearman([1, 2, 3, 4], [10, 20, 30, 25]) == pytest.approx(0.8)
+
+
+@pytest.mark.slow
+def test_the_gain_scheduling_task_ranks_the_ladder_as_its_metric_does(monkeypatch):
+    """training/reward_ladder.py on 4 of the gain-scheduling id's draws: its return ranks the fifteen
+    rungs (the PIDs, three classical controllers, five constant schedules, the shipped `gains-ppo`
+    x0.5, x1, x1.5 and x-1, random) as x at the collision does (Spearman >= 0.9), and pays the
+    policy more than its base on every draw; a constant schedule's return scored offline is the one
+    the gains environment pays for that action held."""
+    import gymnasium as gym
+
+    monkeypatch.syspath_prepend(str(TRAINING))
+    ladder = importlib.import_module("reward_ladder")
+    returns_table = importlib.import_module("returns_table")
+    env_id = "MicroGravityLanding-GainScheduling-v1"
+    rungs = ladder.run_ladder(env_id, "gains-ppo", range(1000, 1004))
+    assert [rung.name for rung in rungs][-1] == "random"
+    assert len(rungs) == 15
+    result = ladder.report(env_id, "gains-ppo", rungs, [1e-6])["by_scale"]["1e-06"]
+    assert result["spearman"] >= ladder.MIN_SPEARMAN
+    assert result["policy_minus_base"] > 0.0
+    assert result["policy_minus_base_sign_p"] == 0.125  # above the base on all 4 draws
+    env = gym.make(env_id)
+    by_name = {rung.name: rung for rung in rungs}
+    for name in ("pid-dom (zero action)", "Ki x1/2"):
+        action = np.array(ladder.SCHEDULES.get(name, (0.0, 0.0, 0.0)), dtype=np.float32)
+        offline = by_name[name].returns(1e-6, env.unwrapped.core.x_limit_m, 5, contact_only=False)
+        paid = returns_table.episode_return(env, lambda obs, action=action: action, 1000)
+        assert offline[0] == pytest.approx(paid, rel=1e-9), name
+    assert by_name["Ki x1/2"].collision_m.mean() > by_name["pid-dom (zero action)"].collision_m.mean()

@@ -1,4 +1,5 @@
-"""The returns table of the learning task (MicroGravityLanding-Residual-v7 to -v1): what each controller earns.
+"""The returns table of the learning tasks (MicroGravityLanding-GainScheduling-v1, -Residual-v7 to -v1): what
+each controller earns.
 
 Every controller runs in the residual environment with the id's defaults (a residual x setpoint on
 `adaptive`, held 5 control periods: +-1 um in v1, +-3 um high-passed at 2 Hz in v2, twice in v3,
@@ -9,7 +10,8 @@ residual`` (the id's base alone), the other classical controllers as the base wi
 (an all-zero residual is exactly its base) and learned policies (shipped names or policy folders
 trained on this task). A
 return is the episode's undiscounted sum of rewards; the table gives mean ± std over seeds from
-1000, the comparison's test seeds. ``training`` draws the id's own schedules; the other scenarios
+1000, the comparison's test seeds. On the gain-scheduling id the rows are ``zero action`` (its base PID
+as tuned) and the other PID as its base. ``training`` draws the id's own schedules; the other scenarios
 are the comparison's, outside the training draws. The id's ``reward_threshold`` is the zero
 residual's mean return on ``training`` over 100 seeds (``--seeds 100 --scenarios training``),
 rounded down: a policy above it earns more than its base controller alone on the task it was
@@ -35,13 +37,16 @@ from microg_env.controllers.registry import (
     shipped_policy_folder,
 )
 from microg_env.experiments.comparison import TEST_SEED
+from microg_env.interface import GAIN_BASES, action_size
 from microg_env.learning.train import ENV_IDS as TRAINED_IDS
 from microg_env.scenarios import comparison_scenarios
 from microg_env.task import TaskSettings
 
-#: The learning task's ids (the residual ones ``microg train`` trains on), the newest first (the default).
-ENV_IDS = tuple(
-    reversed([env_id for env_id in TRAINED_IDS if gym.spec(env_id).kwargs.get("action_mode") == "residual"])
+#: The learning tasks' ids (those ``microg train`` trains on): the residual ones, the newest first (the
+#: default), then the gain-scheduling one.
+ENV_IDS = (
+    *reversed([env_id for env_id in TRAINED_IDS if gym.spec(env_id).kwargs.get("action_mode") == "residual"]),
+    *[env_id for env_id in TRAINED_IDS if gym.spec(env_id).kwargs.get("action_mode") == "gains"],
 )
 #: The classical controllers run as the base with a zero residual, a row each.
 CLASSICAL = ("pid", "feedforward", "adaptive", "adaptive-dither", "oracle")
@@ -61,9 +66,11 @@ def episode_return(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], seed: 
 
 def base_rows(env_id: str) -> dict[str, str]:
     """The classical controllers' rows of ``env_id``'s table, by name: the id's own base controller
-    is its ``zero residual`` row."""
-    own = gym.spec(env_id).kwargs["base_controller"]
-    return {(f"zero residual ({name})" if name == own else name): name for name in CLASSICAL}
+    is its ``zero residual`` (``zero action``) row; a gains id's bases are the PIDs."""
+    kwargs = gym.spec(env_id).kwargs
+    own, gains = kwargs["base_controller"], kwargs["action_mode"] == "gains"
+    zero = "zero action" if gains else "zero residual"
+    return {(f"{zero} ({name})" if name == own else name): name for name in (GAIN_BASES if gains else CLASSICAL)}
 
 
 def make_env(env_id: str, scenario: str, base: str | None = None) -> gym.Env:
@@ -104,13 +111,14 @@ def returns(env_id: str, row: str, scenario: str, seeds: int) -> list[float]:
     """The returns of controller ``row`` (a :func:`base_rows` name, "random" or a policy) on ``scenario``."""
     bases = base_rows(env_id)
     env = make_env(env_id, scenario, bases.get(row))
+    size = action_size(gym.spec(env_id).kwargs["action_mode"])
     values = []
     for seed in range(TEST_SEED, TEST_SEED + seeds):
         if row == "random":
             rng = np.random.default_rng(seed)
-            act = lambda obs, rng=rng: rng.uniform(-1.0, 1.0, size=1).astype(np.float32)  # noqa: E731
+            act = lambda obs, rng=rng: rng.uniform(-1.0, 1.0, size=size).astype(np.float32)  # noqa: E731
         elif row in bases:
-            act = lambda obs: np.zeros(1, dtype=np.float32)  # noqa: E731
+            act = lambda obs: np.zeros(size, dtype=np.float32)  # noqa: E731
         else:
             act = policy_actor(env_id, row)
         values.append(episode_return(env, act, seed))

@@ -1,20 +1,23 @@
-"""The reward ladder: does a residual task's return rank controllers as its headline metric does?
+"""The reward ladder: does a learning task's return rank controllers as its headline metric does?
 
 Each rung drives the id's own draws (its training schedules, plants and drives, seeds from
-``--first-seed``): the paper's PID and the other classical controllers as the base with a zero
-residual (the zero residual on the id's base is the base itself), the shipped policy as trained
-and with its action scaled by 0.5, 1.5 and -1, and uniform random actions. Every rung runs in the
-speed-action environment through :class:`~microg_env.controllers.policy.PolicyController`, which
-acts as the training environment does, so one rollout gives both the headline metric (x at the
-first collision, as ``microg compare`` reports it) and every control period's true x, from which
-the return is scored for each reward scale x0 (``--scales``) offline: the id's reward with that x0,
-summed over the episode and divided by the decision period (a step's reward is the mean over its
-periods). The report gives each rung's mean return and metric, Spearman's rank correlation of
-the rungs' mean returns with their negated mean metrics per x0, and the shipped policy's return
-minus its base's, paired by seed (mean, its standard error and the sign test's p).
+``--first-seed``). On a residual id: the paper's PID and the other classical controllers as the base
+with a zero residual (the zero residual on the id's base is the base itself), the shipped policy as
+trained and with its action scaled by 0.5, 1.5 and -1, and uniform random actions. On the
+gain-scheduling id: its base PID as tuned (the zero action), the other classical controllers,
+constant gain schedules (:data:`SCHEDULES`), uniform random actions and, with ``--policy``, a policy
+trained on it, scaled as above. Every rung runs in the speed-action environment through
+:class:`~microg_env.controllers.policy.PolicyController`, which acts as the training environment
+does, so one rollout gives both the headline metric (x at the first collision, as ``microg
+compare`` reports it) and every control period's true x, from which the return is scored for each
+reward scale x0 (``--scales``) offline: the id's reward with that x0, summed over the episode and
+divided by the decision period (a step's reward is the mean over its periods). The report gives
+each rung's mean return and metric, Spearman's rank correlation of the rungs' mean returns with
+their negated mean metrics per x0, and the policy's return minus its base's, paired by seed (mean,
+its standard error and the sign test's p).
 
-Run: ``python training/reward_ladder.py [--env MicroGravityLanding-Residual-v6] [--seeds 40]
-[--scales 1e-8,1e-7,1e-6] [--json FILE]``.
+Run: ``python training/reward_ladder.py [--env MicroGravityLanding-Residual-v6] [--policy NAME]
+[--seeds 40] [--scales 1e-8,1e-7,1e-6] [--json FILE]``.
 """
 
 from __future__ import annotations
@@ -35,11 +38,23 @@ from microg_env.analysis.paired import sign_test_p
 from microg_env.controllers.registry import ACTING_KEYS, deployed_controller, make_controller
 from microg_env.envs.landing import MicroGravityLandingEnv, x_reward
 from microg_env.experiments.comparison_settings import TEST_SEED
+from microg_env.interface import action_size
 from microg_env.rollout.batch import EpisodeSpec, run_batch
 from microg_env.trajectory import Trajectory
 
-#: Classical rungs: each the id's base swapped for it, with a zero residual.
+#: Classical rungs: each the id's base swapped for it, with a zero residual (on a gains id: run as itself).
 CLASSICAL = ("pid", "feedforward", "adaptive", "adaptive-dither")
+#: A gains id's constant schedules: rung name -> the action held throughout (the log2 of Kp's, Ki's and
+#: Kd's multipliers at the default gain limit of 2).
+SCHEDULES = {
+    "Kp x2": (1.0, 0.0, 0.0),
+    "Ki x2": (0.0, 1.0, 0.0),
+    "Kp x1/2": (-1.0, 0.0, 0.0),
+    "Ki x1/2": (0.0, -1.0, 0.0),
+    "all x1/2": (-1.0, -1.0, -1.0),
+}
+#: The name of the rung that is an id's base controller alone, by action mode.
+ZERO = {"residual": "zero residual", "gains": "zero action"}
 #: The shipped policy's action scaled: rungs named "policy x<scale>".
 SCALES = (0.5, 1.0, 1.5, -1.0)
 #: Rank agreement the ladder must reach (Spearman's rho of mean return against negated mean metric).
@@ -58,18 +73,30 @@ class ScaledPolicy:
 
 
 class RandomPolicy:
-    """Uniform random actions in [-1, 1] from its own generator."""
+    """Uniform random actions in [-1, 1], ``size`` numbers each, from its own generator."""
 
-    def __init__(self, seed: int) -> None:
-        self.rng = np.random.default_rng(seed)
+    def __init__(self, seed: int, size: int = 1) -> None:
+        self.rng, self.size = np.random.default_rng(seed), size
 
     def predict(self, observation, deterministic: bool = True):
-        return self.rng.uniform(-1.0, 1.0, size=(np.atleast_2d(observation).shape[0], 1)).astype(np.float32), None
+        shape = (np.atleast_2d(observation).shape[0], self.size)
+        return self.rng.uniform(-1.0, 1.0, size=shape).astype(np.float32), None
+
+
+class ConstantPolicy:
+    """The same ``action`` at every decision."""
+
+    def __init__(self, action: Sequence[float]) -> None:
+        self.action = np.asarray(action, dtype=np.float32)
+
+    def predict(self, observation, deterministic: bool = True):
+        return np.tile(self.action, (np.atleast_2d(observation).shape[0], 1)), None
 
 
 @dataclass(frozen=True)
 class Rung:
-    """One controller's episodes: x at the first collision (NaN where the episode had none), each
+    """One controller's episodes: x at the first collision (the episode's largest x where it ended
+    before one), each
     episode's true x at every control period, and the periods of its first contact."""
 
     name: str
@@ -111,22 +138,28 @@ def speed_env(env_id: str) -> MicroGravityLandingEnv:
     return MicroGravityLandingEnv(**speed_settings(env_id))
 
 
-def controllers(env_id: str, policy: str, seed: int) -> dict[str, object]:
-    """The ladder's rungs for ``env_id``: name -> a fresh controller."""
+def controllers(env_id: str, policy: str | None, seed: int) -> dict[str, object]:
+    """The ladder's rungs for ``env_id`` (a residual or gains id; ``policy`` one trained on it, or
+    None): name -> a fresh controller."""
     kwargs = gym.spec(env_id).kwargs
+    mode = kwargs["action_mode"]
     period = MicroGravityLandingEnv().settings.control_period_s
     base = kwargs["base_controller"]
     rungs: dict[str, object] = {}
-    for name in CLASSICAL:
-        rungs[f"{name} (zero residual)" if name == base else name] = make_controller(name, period)
-    network = make_controller(policy, period).policy
-    for scale in SCALES:
-        rungs[f"{policy} x{scale:g}"] = deployed_controller(ScaledPolicy(network, scale), kwargs)
-    rungs["random"] = deployed_controller(RandomPolicy(seed), kwargs)
+    for name in (*CLASSICAL, base) if base not in CLASSICAL else CLASSICAL:
+        rungs[f"{name} ({ZERO[mode]})" if name == base else name] = make_controller(name, period)
+    if mode == "gains":
+        for name, action in SCHEDULES.items():
+            rungs[name] = deployed_controller(ConstantPolicy(action), kwargs)
+    if policy is not None:
+        network = make_controller(policy, period).policy
+        for scale in SCALES:
+            rungs[f"{policy} x{scale:g}"] = deployed_controller(ScaledPolicy(network, scale), kwargs)
+    rungs["random"] = deployed_controller(RandomPolicy(seed, action_size(mode)), kwargs)
     return rungs
 
 
-def run_ladder(env_id: str, policy: str, seeds: Sequence[int]) -> list[Rung]:
+def run_ladder(env_id: str, policy: str | None, seeds: Sequence[int]) -> list[Rung]:
     """Every rung on every seed, as rigs of batches (:func:`~microg_env.rollout.batch.run_batch`:
     each the single environment's episode, bit for bit; the random rung's one generator is drawn
     from across its rigs, so its draws depend on how the rigs are batched)."""
@@ -142,7 +175,9 @@ def run_ladder(env_id: str, policy: str, seeds: Sequence[int]) -> list[Rung]:
                 raise RuntimeError(f"{name}: {error}")
             window = first_contact(trajectory)
             x = np.asarray(trajectory.x_m)
-            collision.append(float(np.max(np.abs(x[window]))) if window.stop else math.nan)
+            # an episode without a whole first contact (ended at a stroke's end by an unstable schedule before
+            # touchdown, or still on the pad at its end) counts the largest x it reached: a failure ranks last
+            collision.append(float(np.max(np.abs(x[window] if window.stop else x))))
             xs.append(x[1:])  # the periods run (the first row is the reset)
             windows.append(slice(max(window.start - 1, 0), max(window.stop - 1, 0)))
         out.append(Rung(name, np.array(collision), xs, windows))
@@ -156,24 +191,29 @@ def spearman(a: Sequence[float], b: Sequence[float]) -> float:
     return float(spearmanr(a, b).statistic)
 
 
-def report(env_id: str, policy: str, rungs: list[Rung], scales: Sequence[float]) -> dict:
+def report(env_id: str, policy: str | None, rungs: list[Rung], scales: Sequence[float]) -> dict:
     env = speed_env(env_id)
-    limit, period = env.core.x_limit_m, int(gym.spec(env_id).kwargs["decision_period"])
-    base = next(r for r in rungs if r.name.endswith("(zero residual)"))
-    shipped = next(r for r in rungs if r.name == f"{policy} x1")
-    metric = {r.name: float(np.nanmean(r.collision_m)) for r in rungs}
+    kwargs = gym.spec(env_id).kwargs
+    limit, period = env.core.x_limit_m, int(kwargs["decision_period"])
+    base = next(r for r in rungs if r.name.endswith(f"({ZERO[kwargs['action_mode']]})"))
+    shipped = None if policy is None else next(r for r in rungs if r.name == f"{policy} x1")
+    metric = {r.name: float(np.mean(r.collision_m)) for r in rungs}
     out: dict = {"env": env_id, "policy": policy, "episodes": len(base.x_m), "metric_m": metric, "by_scale": {}}
     for scale, contact_only in [(s, c) for c in (False, True) for s in scales]:
         returns = {r.name: r.returns(scale, limit, period, contact_only) for r in rungs}
         means = {name: float(values.mean()) for name, values in returns.items()}
-        gain = returns[shipped.name] - returns[base.name]
-        out["by_scale"][f"{scale:g}{', first contact' if contact_only else ''}"] = {
+        entry = {
             "mean_return": means,
             "spearman": spearman([means[r.name] for r in rungs], [-metric[r.name] for r in rungs]),
-            "policy_minus_base": float(gain.mean()),
-            "policy_minus_base_se": float(gain.std(ddof=1) / math.sqrt(gain.size)) if gain.size > 1 else math.nan,
-            "policy_minus_base_sign_p": sign_test_p(gain),
         }
+        if shipped is not None:
+            gain = returns[shipped.name] - returns[base.name]
+            entry |= {
+                "policy_minus_base": float(gain.mean()),
+                "policy_minus_base_se": float(gain.std(ddof=1) / math.sqrt(gain.size)) if gain.size > 1 else math.nan,
+                "policy_minus_base_sign_p": sign_test_p(gain),
+            }
+        out["by_scale"][f"{scale:g}{', first contact' if contact_only else ''}"] = entry
     return out
 
 
@@ -191,6 +231,8 @@ def render(result: dict) -> str:
     lines.append(
         "| Spearman (return, -x) | | " + " | ".join(f"{result['by_scale'][s]['spearman']:.3f}" for s in scales) + " |"
     )
+    if result["policy"] is None:
+        return "\n".join(lines)
     lines.append(
         f"| {result['policy']} − base, paired | | "
         + " | ".join(
@@ -204,15 +246,20 @@ def render(result: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="MicroGravityLanding-Residual-v6", help="a residual id")
-    parser.add_argument("--policy", default="residual-sac-setpoint", help="a shipped policy trained on it")
+    parser.add_argument("--env", default="MicroGravityLanding-Residual-v6", help="a residual or gains id")
+    parser.add_argument(
+        "--policy", help="a policy trained on it (shipped or a folder; default residual-sac-setpoint on a residual id)"
+    )
     parser.add_argument("--seeds", type=int, default=40)
     parser.add_argument("--first-seed", type=int, default=TEST_SEED)
     parser.add_argument("--scales", default="1e-8,1e-7,1e-6", help="reward scales x0 to score, m")
     parser.add_argument("--json", help="also write the result here")
     args = parser.parse_args(argv)
-    if gym.spec(args.env).kwargs.get("action_mode") != "residual":
-        parser.error(f"--env: {args.env} is not a residual id")
+    mode = gym.spec(args.env).kwargs.get("action_mode")
+    if mode not in ZERO:
+        parser.error(f"--env: {args.env} is not a residual or gains id")
+    if args.policy is None and mode == "residual":
+        args.policy = "residual-sac-setpoint"
     scales = [float(s) for s in args.scales.split(",")]
     rungs = run_ladder(args.env, args.policy, range(args.first_seed, args.first_seed + args.seeds))
     result = report(args.env, args.policy, rungs, scales)

@@ -59,8 +59,8 @@ def main(argv: list[str]) -> int:
     except ValueError as error:
         sys.exit(f"select_seed: {error}")
     task = cards[0]["env_kwargs"]
-    if task.get("action_mode") != "residual":
-        sys.exit(f"{runs[0]}: not a residual policy; the seed selection compares residuals on one base controller")
+    if task.get("action_mode") not in ("residual", "gains"):
+        sys.exit(f"{runs[0]}: not a residual or gains policy; the seed selection compares policies on one base")
     for run, card in zip(runs, cards, strict=True):
         if json.dumps(card["env_kwargs"], sort_keys=True) != json.dumps(task, sort_keys=True):
             sys.exit(f"{run}: trained on another task than {runs[0]}; compare runs of one task")
@@ -69,13 +69,14 @@ def main(argv: list[str]) -> int:
     settings = validation_settings(task)
     period = TaskSettings(**settings).control_period_s
     seeds = range(VALIDATION_SEED, VALIDATION_SEED + args.episodes)
-    rows = {f"zero residual ({task['base_controller']})": (task["base_controller"], "")}  # first: the line
+    zero = "zero action" if task["action_mode"] == "gains" else "zero residual"
+    rows = {f"{zero} ({task['base_controller']})": (task["base_controller"], "")}  # first: the line
     for run, card in zip(runs, cards, strict=True):
         rows[run] = (load_policy(Path(run) / "policy", period), card.get("seed", ""))
     rig = task.get("sensor_set", "extended")
     print(f"{args.episodes} validation episodes, seeds {seeds[0]}-{seeds[-1]}, sensor set {rig}")
     print(
-        "| run | seed | cost | \\|compensation error\\| [%] | x, collision [um] | vs zero residual | "
+        f"| run | seed | cost | \\|compensation error\\| [%] | x, collision [um] | vs {zero} | "
         "worst x, collision [um] | x in free fall [um] |"
     )
     print("|---|---|---|---|---|---|---|---|")
@@ -83,7 +84,7 @@ def main(argv: list[str]) -> int:
     for name, (controller, seed) in rows.items():
         row = scores(validation_runs(task, controller, args.episodes)[0])
         costs[name] = row["cost"]
-        if line is None:  # the zero residual's, the first row
+        if line is None:  # the zero action's, the first row
             line = row["collision_um"]
         print(
             f"| {name} | {seed} | {row['cost']:.4f} | {row['compensation_error_pct']:.4f} | "

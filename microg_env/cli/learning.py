@@ -349,7 +349,8 @@ def add_commands(commands) -> None:
         "export-onnx",
         help="export a learned policy's network to ONNX, for a real-time loop",
         description="Write the network of POLICY as an ONNX file: a float64 observation (N, 10) in, a float32 "
-        "action (N, 1) out, equal to the NumPy policy to 1e-6, with how the policy is deployed (decision period, "
+        "action (N, 1) out ((N, 3) for a gains policy), equal to the NumPy policy to 1e-6, with how the policy is "
+        "deployed (decision period, "
         "hidden entries, residual filter and gate, base controller) in its metadata; docs/deployment.md. Needs "
         "the onnx extra.",
     )

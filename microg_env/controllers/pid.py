@@ -12,6 +12,10 @@ conditional-integration anti-windup. Two derivative terms are offered:
   the jump of the lander's velocity at impact no longer kicks the command.
 
 The loop holds x at ``setpoint_m`` (0: the rig's purpose); the environment's residual mode moves it.
+Its gains are each rig's ``kp_scale``, ``ki_scale`` and ``kd_scale`` times the tuned ones (1: as
+tuned); the environment's gains mode (the paper's Conclusions: learning that "automatically
+adjusts the control parameters during the collision") sets them. A scaled Ki scales the integral's
+increments, not the integral held: a change of Ki does not step the command.
 """
 
 from __future__ import annotations
@@ -67,7 +71,14 @@ def load_gains(name: str) -> PIDGains:
 class PID(VectorController):
     """PID on x commanding the support speed; see the module docstring for the two D terms."""
 
-    STATE: ClassVar[dict[str, float]] = {"_integral": 0.0, "_derivative": 0.0, "setpoint_m": 0.0}
+    STATE: ClassVar[dict[str, float]] = {
+        "_integral": 0.0,
+        "_derivative": 0.0,
+        "setpoint_m": 0.0,
+        "kp_scale": 1.0,
+        "ki_scale": 1.0,
+        "kd_scale": 1.0,
+    }
 
     def __init__(self, gains: PIDGains, control_period_s: float, derivative_on_measurement: bool = False) -> None:
         super().__init__()
@@ -93,14 +104,23 @@ class PID(VectorController):
         """:func:`pid_actions`'s arguments after the observations and rigs, but its output."""
         return (SCALES, self.derivative_on_measurement, self.loop())
 
+    def schedule(self, ids: np.ndarray, scales: np.ndarray) -> None:
+        """Multiply rigs ``ids``' tuned Kp, Ki and Kd by ``scales`` (n, 3) from their next command on
+        (an episode starts at 1, as tuned)."""
+        self.kp_scale[ids], self.ki_scale[ids], self.kd_scale[ids] = scales.T
+
     def loop(self) -> tuple:
-        """:func:`pid_command`'s ``loop``: this loop's state (setpoint, integral and filtered
-        derivative, one entry per rig) and its constants (:attr:`constants`)."""
-        return (self.setpoint_m, self._integral, self._derivative, *self.constants)
+        """:func:`pid_command`'s ``loop``: this loop's state (setpoint, integral, filtered
+        derivative and the gains' multipliers, one entry per rig) and its constants
+        (:attr:`constants`)."""
+        return (
+            self.setpoint_m, self._integral, self._derivative, self.kp_scale, self.ki_scale, self.kd_scale,
+            *self.constants,
+        )  # fmt: skip
 
 
 #: Where :meth:`PID.loop`'s tuple holds the drive's maximum speed, m/s (the action's unit).
-LOOP_MAX_SPEED = 9
+LOOP_MAX_SPEED = 12
 
 
 @jit
@@ -109,13 +129,27 @@ def pid_command(i, x, rate, bias, loop):
     ``bias`` (a feed-forward, m/s) is added inside the saturation, so the anti-windup sees the whole
     command. ``loop`` is :meth:`PID.loop`'s tuple; the rig's integral and filtered derivative are
     updated in it."""
-    setpoint, integral, derivative, kp, ki, kd, alpha, integral_limit, period, max_speed = loop
+    (
+        setpoint,
+        integral,
+        derivative,
+        kp_scale,
+        ki_scale,
+        kd_scale,
+        kp,
+        ki,
+        kd,
+        alpha,
+        integral_limit,
+        period,
+        max_speed,
+    ) = loop
     error = x - setpoint[i]
     filtered = derivative[i] + alpha * (rate - derivative[i])
     derivative[i] = filtered
     previous = integral[i]
-    integrated = min(max(previous + ki * error * period, -integral_limit), integral_limit)
-    command = bias + kp * error + integrated + kd * filtered
+    integrated = min(max(previous + ki * ki_scale[i] * error * period, -integral_limit), integral_limit)
+    command = bias + kp * kp_scale[i] * error + integrated + kd * kd_scale[i] * filtered
     # Conditional integration: do not wind the integral further into a saturated command.
     if abs(command) <= max_speed or (command > 0) != (error > 0):
         integral[i] = integrated

@@ -31,11 +31,15 @@ import numpy as np
 from microg_env import validate
 from microg_env.compiled import jit
 from microg_env.controllers.base import SetpointController, VectorController, tell_plants
+from microg_env.controllers.pid import PID
 from microg_env.files import atomic_path
 from microg_env.interface import (
     MAX_SPEED_M_S,
     OBSERVATION_INDEX,
     OBSERVATION_SCALES,
+    action_size,
+    gain_scales,
+    gated_actions,
     gated_setpoint,
     highpass_gain,
 )
@@ -110,14 +114,19 @@ class MLPPolicy:
             raise ValueError("obs_var must not be negative")
         if (self.obs_var + self.epsilon <= 0).any():
             raise ValueError("obs_var + epsilon must be positive, the deviation every observation is divided by")
-        if self.weights[-1].ndim != 2 or self.weights[-1].shape[0] != 1:
-            raise ValueError(f"the last layer must give the one action, got weight {self.weights[-1].shape}")
+        if self.weights[-1].ndim != 2 or self.weights[-1].shape[0] < 1:
+            raise ValueError(f"the last layer must give the action's numbers, got weight {self.weights[-1].shape}")
         size = self.obs_mean.shape[0]
         for weight, bias in zip(self.weights, self.biases, strict=True):
             if weight.ndim != 2 or weight.shape[1] != size or bias.shape != (weight.shape[0],):
                 raise ValueError(f"layer shapes do not chain: weight {weight.shape}, bias {bias.shape}, input {size}")
             size = weight.shape[0]
         object.__setattr__(self, "_obs_std", np.sqrt(self.obs_var + self.epsilon))  # once, not every call
+
+    @property
+    def action_size(self) -> int:
+        """How many numbers the policy's action holds (its last layer's outputs)."""
+        return int(self.weights[-1].shape[0])
 
     def normalize(self, observation: np.ndarray) -> np.ndarray:
         """VecNormalize's observation normalisation with the training statistics."""
@@ -184,7 +193,10 @@ class PolicyController(VectorController):
 
     The policy acts every ``decision_period`` control periods. In ``action_mode="residual"`` its
     action is a setpoint for x, ``action * residual_limit_m``, that the ``base`` controller holds
-    while commanding the drive every period; in speed mode the action is the speed command, held.
+    while commanding the drive every period; in ``action_mode="gains"`` it multiplies the ``base``
+    PID's gains (:func:`~microg_env.interface.gain_scales`; the mean of its numbers is the
+    observation's previous action, as in the environment); in speed mode the action is the speed
+    command, held.
     The setpoint is the action high-passed (:func:`~microg_env.interface.residual_setpoint`) and
     gated (:func:`~microg_env.interface.gated_setpoint`) as the settings say, and the
     ``hidden_observations`` read 0 to the policy. An all-zero residual is exactly the base
@@ -209,10 +221,18 @@ class PolicyController(VectorController):
         deterministic: bool = True,
     ) -> None:
         acting = validate.instance("acting", ActingSettings() if acting is None else acting, ActingSettings)
-        if (base is not None) != (acting.action_mode == "residual"):
+        if (base is not None) != (acting.action_mode != "speed"):
             raise ValueError(
                 f"a policy of action_mode {acting.action_mode!r} acts {'on' if base is None else 'without'} a base "
                 f"controller, got base {type(base).__name__}"
+            )
+        if acting.action_mode == "gains" and not isinstance(base, PID):
+            raise ValueError(f"a gains policy schedules a PID's gains, got base {type(base).__name__}")
+        width = getattr(policy, "action_size", action_size(acting.action_mode))
+        if width != action_size(acting.action_mode):
+            raise ValueError(
+                f"the policy gives {width} numbers an action, and action_mode {acting.action_mode!r} takes "
+                f"{action_size(acting.action_mode)}"
             )
         super().__init__(*(() if base is None else (base,)))
         self.policy = policy
@@ -222,6 +242,7 @@ class PolicyController(VectorController):
         self._residual_gain = highpass_gain(acting.residual_highpass_hz, acting.decision_period * control_period_s)
         self._second_stage = acting.residual_highpass_order == 2
         self._hidden = [OBSERVATION_INDEX[name] for name in acting.hidden_observations]
+        self._size = action_size(acting.action_mode)
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         due = np.empty(ids.size, dtype=np.bool_)
@@ -234,8 +255,12 @@ class PolicyController(VectorController):
             )
             seen[:, self._hidden] = 0.0
             action, _ = self.policy.predict(seen, deterministic=self.deterministic)
-            self._action[acting] = np.clip(np.asarray(action, dtype=np.float32).reshape(-1), -1.0, 1.0)
-            if self.base is not None:
+            action = np.clip(np.asarray(action, dtype=np.float32).reshape(acting.size, self._size), -1.0, 1.0)
+            if self.acting.action_mode == "gains":
+                gated = gated_actions(action, rows[due], self.acting.residual_gate_m)
+                self.base.schedule(acting, gain_scales(gated, self.acting.gain_limit))
+            self._action[acting] = action.mean(axis=1, dtype=np.float64)  # the environment's; one number: itself
+            if self.acting.action_mode == "residual":
                 self.base.setpoint_m[acting] = gated_setpoint(
                     self._action[acting],
                     rows[due],

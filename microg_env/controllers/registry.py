@@ -32,6 +32,7 @@ from microg_env.interface import (
     MIXED_SENSORS,
     NETWORK_FILE,
     SENSOR_SETS,
+    action_size,
     hidden_entries,
     is_policy_folder,
     selects_policy,
@@ -253,9 +254,16 @@ def check_policy_folder(folder: str | Path) -> tuple[dict[str, Any], MLPPolicy]:
     """The card and network of an exported policy folder, or a ValueError naming what is wrong."""
     card = policy_card(folder)
     try:
-        return card, MLPPolicy.load(Path(folder) / NETWORK_FILE)
+        policy = MLPPolicy.load(Path(folder) / NETWORK_FILE)
     except (OSError, KeyError, ValueError, TypeError, zipfile.BadZipFile) as error:
         raise ValueError(f"policy folder {str(folder)!r}: cannot read {NETWORK_FILE} ({error})") from None
+    mode = ActingSettings.of(card["env_kwargs"]).action_mode
+    if policy.action_size != action_size(mode):
+        raise ValueError(
+            f"policy folder {str(folder)!r}: its network gives {policy.action_size} numbers an action, and "
+            f"action_mode {mode!r} takes {action_size(mode)}"
+        )
+    return card, policy
 
 
 def load_policy(
@@ -297,12 +305,12 @@ def deployed_controller(
 ) -> PolicyController:
     """``policy``, trained in ``MicroGravityLanding-v1`` with ``env_kwargs``, as the controller it
     is deployed as (a ``controller``, :class:`PolicyController` or a subclass of it): acting as its
-    :class:`~microg_env.task.ActingSettings` say, on its base controller in residual mode (assuming
+    :class:`~microg_env.task.ActingSettings` say, on its base controller in residual and gains mode (assuming
     the nominal rig ``params``, default the paper's), shown what it was shown in training
     (:func:`deployed_hidden`)."""
     acting = ActingSettings.of(env_kwargs)
     period = float(env_kwargs.get("control_period_s", TASK_DEFAULTS["control_period_s"]))
-    base = make_controller(acting.base_controller, period, params) if acting.action_mode == "residual" else None
+    base = make_controller(acting.base_controller, period, params) if acting.action_mode != "speed" else None
     return controller(policy, replace(acting, hidden_observations=deployed_hidden(env_kwargs)), base, period)
 
 

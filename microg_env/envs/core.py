@@ -34,6 +34,9 @@ from microg_env.interface import (
     OBSERVATION_INDEX,
     SCALES,
     SENSOR_SETS,
+    action_size,
+    gain_scales,
+    gated_actions,
     gated_setpoint,
     highpass_gain,
 )
@@ -184,7 +187,7 @@ class LandingCore:
         self._force_adr = int(model.sensor_adr[model.sensor("pad_force").id])
         self.base = (
             make_controller(self.settings.base_controller, self.settings.control_period_s, self.base_params)
-            if self.settings.action_mode == "residual"
+            if self.settings.action_mode != "speed"
             else None
         )
 
@@ -393,13 +396,22 @@ class LandingCore:
     def step(
         self, ids: np.ndarray, actions: np.ndarray, rngs: Sequence[np.random.Generator]
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """One environment step of rigs ``ids`` (sorted, unique) with ``actions`` (clipped, one per
-        rig): the action held for ``decision_period`` control periods or until the rig's episode ends.
+        """One environment step of rigs ``ids`` (sorted, unique) with ``actions`` (clipped, flat:
+        :func:`~microg_env.interface.action_size` numbers per rig): the action held for
+        ``decision_period`` control periods or until the rig's episode ends. A ``gains`` action
+        sets the base PID's gain multipliers (:func:`~microg_env.interface.gain_scales`; 1 while a
+        ``residual_gate_m`` reads the foot above it); the mean of its components is the rig's
+        previous action (the observation's entry 8).
 
         Returns the mean reward over the periods run, the termination codes
         (:data:`TERMINATION_REASONS`), whether each was truncated, and the periods run.
         """
-        if self.base is not None:
+        if self.settings.action_mode == "gains":
+            actions = actions.reshape(ids.size, action_size("gains"))
+            gated = gated_actions(actions, self.observation[ids], self.settings.residual_gate_m)
+            self.base.schedule(ids, gain_scales(gated, self.settings.gain_limit))
+            actions = actions.mean(axis=1)
+        elif self.base is not None:
             self.base.setpoint_m[ids] = gated_setpoint(
                 actions,
                 self.observation[ids],
@@ -630,7 +642,7 @@ class LandingCore:
 
 def check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
     """The actions as floats clipped to [-1, 1], flat; NaN, infinite, non-numeric or wrongly shaped
-    actions raise ValueError (``shape`` is (1,) for one rig, (N, 1) for N)."""
+    actions raise ValueError (``shape`` is (k,) for one rig, (N, k) for N: k numbers an action)."""
     if type(actions) is np.ndarray and actions.dtype.kind == "f" and actions.shape == shape == (1,):
         value = float(actions[0])  # one rig's action, as controllers and SB3 give it: the fast path
         if not math.isfinite(value):

@@ -44,7 +44,7 @@ class MicroGravityLandingEnv(gym.Env):
     test conditions (Table 2), a custom schedule, or schedules drawn for training.
 
     ## Action Space
-    ``Box(-1, 1, (1,), float32)``, held for ``decision_period`` control periods:
+    ``Box(-1, 1, (1,), float32)`` (``(3,)`` in gains mode), held for ``decision_period`` control periods:
 
     * ``action_mode="speed"`` (default): the servo drive's speed reference for the support, scaled
       to +-1250 mm/s (the mechanism's maximum, Section 4.1), up positive;
@@ -60,7 +60,12 @@ class MicroGravityLandingEnv(gym.Env):
       the base controller alone flies every free fall and the residual shapes the collision. The
       gate passes the action, then high-passed (``residual_gate_on="action"``: an action held
       before the gate opens enters as a step), or the high-passed setpoint (``"setpoint"``: the
-      action is filtered throughout, and only what it changes passes when the gate opens).
+      action is filtered throughout, and only what it changes passes when the gate opens);
+    * ``action_mode="gains"``: multipliers ``gain_limit ** action`` (x1/2 to x2) of the Kp, Ki and Kd
+      of a base PID (``pid`` or ``pid-dom``) that commands the drive every control period, gated as a
+      residual is by ``residual_gate_m`` (the PID as tuned above it); an action of 0 is the PID as
+      tuned (the paper's Conclusions: learning that adjusts the control parameters during the
+      collision).
 
     Out-of-range values are clipped to [-1, 1]; NaN, infinite, non-numeric or wrongly shaped
     actions raise ``ValueError``. The drive interpolates its position reference at the commanded
@@ -80,8 +85,8 @@ class MicroGravityLandingEnv(gym.Env):
     | 5 | pad contact force | pad force sensor (noisy) | 100 N |
     | 6 | foot height above the pad | encoder + ruler | 0.1 m |
     | 7 | test weights placed so far | load stage (known to the operator) | 1 kg |
-    | 8 | the agent's previous action | - | 1 |
-    | 9 | the base controller's speed command (residual mode; 0 otherwise) | - | 1.25 m/s |
+    | 8 | the agent's previous action (gains mode: the mean of its three numbers) | - | 1 |
+    | 9 | the base controller's speed command (residual and gains mode; 0 otherwise) | - | 1.25 m/s |
 
     ## Rewards
     Per control period, ``x_reward(x) = 1 - log(1 + (x/x0)^2) / log(1 + (x_max/x0)^2)`` with x the
@@ -124,13 +129,14 @@ class MicroGravityLandingEnv(gym.Env):
     | ``physics_step_s`` | physics step; it must divide the control period |
     | ``drive_scheme`` | ``"midpoint"`` (default: the drive's inputs at the step's middle) or ``"mujoco"`` |
     | ``decision_period`` | control periods an action is held (the base controller still runs every one) |
-    | ``action_mode`` | ``"speed"`` or ``"residual"`` (see Action Space) |
-    | ``base_controller`` | the controller a residual action moves the setpoint of |
+    | ``action_mode`` | ``"speed"``, ``"residual"`` or ``"gains"`` (see Action Space) |
+    | ``base_controller`` | the controller a residual action moves the setpoint of, or a gains action's PID |
     | ``residual_limit_m`` | the setpoint an action of +-1 stands for, m |
     | ``residual_highpass_hz`` | corner of the residual's high-pass, Hz (0: none) |
     | ``residual_highpass_order`` | its first-order stages in cascade: 1 or 2 (none without a corner) |
-    | ``residual_gate_m`` | foot height at or below which the residual acts, m (None: always) |
+    | ``residual_gate_m`` | foot height at or below which the residual or gains action acts, m (None: always) |
     | ``residual_gate_on`` | what the gate passes: ``"action"`` (then high-passed) or the high-passed ``"setpoint"`` |
+    | ``gain_limit`` | the gain multiplier an action of +1 stands for (-1: its inverse), in (1, 10] |
     | ``imperfections`` | which non-ideal effects are on (or their flags as a dict) |
     | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
     | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force, accelerometer read 0); ``"mixed"``: drawn |
@@ -194,7 +200,7 @@ class MicroGravityLandingEnv(gym.Env):
         self.dt = self.settings.control_period_s * self.settings.decision_period
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dt)}  # frames play in real time
         self._human_every = max(1, round(1.0 / (60.0 * self.dt)))
-        self.action_space = action_space()
+        self.action_space = action_space(self.settings.action_mode)
         self.observation_space = observation_space()
         self._render_size, self._camera_name = render_settings(self.model, render_mode, width, height, camera_name)
 
@@ -243,7 +249,7 @@ class MicroGravityLandingEnv(gym.Env):
         core = self.core
         if core.episodes[0] is None:
             raise ResetNeeded("call reset() before step()")
-        actions = check_actions(action, (1,))
+        actions = check_actions(action, self.action_space.shape)
         before = int(core.steps[0]) // self._human_every if self.render_mode == "human" else None
         reward, codes, truncated, _ = core.step(_ONE, actions, [self.np_random])
         if before is not None and before != int(core.steps[0]) // self._human_every:

@@ -91,7 +91,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         self.metadata["render_fps"] = round(1.0 / (self.settings.control_period_s * self.settings.decision_period))
         self.render_mode = render_mode
-        self.single_action_space = action_space()
+        self.single_action_space = action_space(self.settings.action_mode)
         self.single_observation_space = observation_space()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -143,8 +143,8 @@ class MicroGravityLandingVectorEnv(VectorEnv):
     def step(self, actions):
         if not self._started.all():
             raise ResetNeeded(f"reset rigs {self._all[~self._started].tolist()} before step()")
-        values = check_actions(actions, (self.num_envs, 1))
         core, n = self.core, self.num_envs
+        values = check_actions(actions, self.action_space.shape).reshape(n, -1)  # a row of numbers per rig
         rewards = np.zeros(n)
         codes = np.zeros(n, dtype=np.int64)
         truncated = np.zeros(n, dtype=bool)
@@ -158,7 +158,7 @@ class MicroGravityLandingVectorEnv(VectorEnv):
         if resetting.any():
             core.reset(self._all[resetting], self._rngs)
         if stepping.size:
-            reward, code, cut, _ = core.step(stepping, values[stepping], self._rngs)
+            reward, code, cut, _ = core.step(stepping, values[stepping].reshape(-1), self._rngs)
             rewards[stepping], codes[stepping], truncated[stepping] = reward, code, cut
         terminated = codes != 0
         ended = terminated | truncated

@@ -58,8 +58,13 @@ def actor_layers(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, 
     if not isinstance(extractor, FlattenExtractor):
         raise ValueError(f"can export MLP policies only, got a {type(extractor).__name__}")
     space = model.action_space
-    if not (isinstance(space, spaces.Box) and space.shape == (1,) and space.low[0] == -1.0 and space.high[0] == 1.0):
-        raise ValueError(f"can export policies of one action in [-1, 1], got the action space {space}")
+    if not (
+        isinstance(space, spaces.Box)
+        and len(space.shape) == 1
+        and (space.low == -1.0).all()
+        and (space.high == 1.0).all()
+    ):
+        raise ValueError(f"can export policies of actions in [-1, 1], got the action space {space}")
     modules = [*hidden, *(head if isinstance(head, nn.Sequential) else [head])]
     mean_clip = 0.0
     if type(modules[-1]) is nn.Hardtanh:  # clip_mean's (gSDE), before the tanh

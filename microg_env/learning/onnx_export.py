@@ -2,7 +2,7 @@
 
 The graph is the policy's ``predict``, in float64 from the observation to the action: the
 normalisation, the layers, the mean clip and the tanh squash or the clip. It takes ``observation``,
-float64 (N, observation size), and gives ``action``, float32 (N, 1), as ``predict`` does. It is built
+float64 (N, observation size), and gives ``action``, float32 (N, action size), as ``predict`` does. It is built
 from the NumPy arrays with ``onnx.helper`` (no torch). onnxruntime has no float64 kernel for Erf, Elu
 or LeakyRelu, so those activations are composed of ops that have one; erf is a piecewise polynomial
 (:func:`erf_pieces`) within a few units in the last place of ``math.erf``. The model's
@@ -149,7 +149,7 @@ def policy_model(policy: MLPPolicy, metadata: Mapping[str, str] | None = None) -
         g.nodes,
         "policy",
         [onnx.helper.make_tensor_value_info(INPUT, onnx.TensorProto.DOUBLE, ["batch", size])],
-        [onnx.helper.make_tensor_value_info(OUTPUT, onnx.TensorProto.FLOAT, ["batch", 1])],
+        [onnx.helper.make_tensor_value_info(OUTPUT, onnx.TensorProto.FLOAT, ["batch", policy.action_size])],
         initializer=g.constants,
     )
     model = onnx.helper.make_model(

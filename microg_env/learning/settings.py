@@ -26,6 +26,7 @@ ENV_IDS = (
     "MicroGravityLanding-Residual-v5",
     "MicroGravityLanding-Residual-v6",
     "MicroGravityLanding-Residual-v7",
+    "MicroGravityLanding-GainScheduling-v1",
 )
 #: What training needs installed, named when it is missing.
 TRAIN_EXTRA = "microg train needs the train extra: pip install 'microg-env[train]'"

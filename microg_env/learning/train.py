@@ -655,15 +655,15 @@ class _Run:
         return runs, failure_rate, selection_cost(runs)
 
     def base_cost(self) -> None:
-        """A residual policy's line to beat: its base controller alone (a zero residual) on the
-        validation schedules, once per run, logged and kept in ``latest.json``."""
-        if self.params.env_kwargs.get("action_mode") != "residual" or "base_cost" in self.state:
+        """A residual or gains policy's line to beat: its base controller alone (a zero action) on
+        the validation schedules, once per run, logged and kept in ``latest.json``."""
+        if self.params.env_kwargs.get("action_mode") not in ("residual", "gains") or "base_cost" in self.state:
             return
         base = self.params.env_kwargs.get("base_controller", "pid")
         period = float(self.params.env_kwargs.get("control_period_s", CONTROL_PERIOD_S))
-        *_, cost = self.validate(make_controller(base, period, self.rig()))  # what a zero residual leaves it
+        *_, cost = self.validate(make_controller(base, period, self.rig()))  # what a zero action leaves it
         self.state["base_cost"] = _json_number(cost)
-        self.log(f"the base controller alone ({base}, a zero residual): cost {_show(cost, '.4g')}, the line to beat")
+        self.log(f"the base controller alone ({base}, a zero action): cost {_show(cost, '.4g')}, the line to beat")
 
     def evaluate(self, model) -> None:
         """The deterministic policy on the validation schedules, by the project's metrics."""

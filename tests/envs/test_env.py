@@ -65,6 +65,15 @@ def test_stable_baselines3_check_env():
     sb3_checker.check_env(MicroGravityLandingEnv(condition=2), warn=False)
 
 
+def test_the_gain_scheduling_id_passes_both_checkers():
+    """Its three-number action included; SB3's checker warns of nothing either."""
+    sb3_checker = pytest.importorskip("stable_baselines3.common.env_checker")
+    env = gym.make("MicroGravityLanding-GainScheduling-v1").unwrapped
+    assert env.action_space.shape == (3,)
+    check_env(env, skip_render_check=True)
+    sb3_checker.check_env(env, warn=True)
+
+
 def test_same_seed_same_trajectory_other_seed_other_noise():
     env = MicroGravityLandingEnv(condition=1)
     first, infos_a = _rollout(env, seed=7, steps=300)
@@ -602,9 +611,21 @@ def test_bad_actions_raise(action):
         ({"residual_gate_m": "0"}, "residual_gate_m"),
         ({"residual_gate_m": True}, "residual_gate_m"),
         ({"residual_gate_m": float("nan")}, "residual_gate_m"),
-        ({"residual_gate_m": 0.0}, r"residual_gate_m 0.0: only action_mode='residual' has a base controller"),
+        ({"residual_gate_m": 0.0}, r"residual_gate_m 0.0: only action_mode 'residual' or 'gains' has it"),
         # each of these was ignored while its siblings were refused
-        ({"base_controller": "adaptive"}, r"base_controller 'adaptive': only action_mode='residual'"),
+        ({"base_controller": "adaptive"}, r"base_controller 'adaptive': only action_mode 'residual' or 'gains' has it"),
+        ({"gain_limit": 3.0}, r"gain_limit 3.0: only action_mode 'gains' has it"),
+        (
+            {"action_mode": "gains", "base_controller": "adaptive"},
+            r"base_controller 'adaptive': action_mode='gains' schedules the gains of pid or pid-dom",
+        ),
+        ({"action_mode": "gains", "gain_limit": 1.0}, r"gain_limit 1.0: the action would move no gain"),
+        ({"action_mode": "gains", "gain_limit": 20.0}, r"gain_limit must be in \[1, 10\], got 20.0"),
+        ({"action_mode": "gains", "gain_limit": "2"}, r"gain_limit"),
+        (
+            {"action_mode": "gains", "residual_limit_m": 2e-6},
+            r"residual_limit_m 2e-06: only action_mode 'residual' has it",
+        ),
         ({"condition": 2, "scenario_sampler": "training"}, "condition 2: scenario_sampler gives the schedule"),
         (
             {"condition": 3, "scenario": Scenario("s", (LoadStep(0.49),), 0.03)},
@@ -618,13 +639,13 @@ def test_bad_actions_raise(action):
             {"reward_descent_scale_m_s": 1e-5},
             "reward_descent_scale_m_s 1e-05: the descent term it scales has no weight",
         ),
-        ({"residual_highpass_hz": 2.0}, r"residual_highpass_hz 2.0: only action_mode='residual'"),
+        ({"residual_highpass_hz": 2.0}, r"residual_highpass_hz 2.0: only action_mode 'residual' has it"),
         (
             {"action_mode": "residual", "residual_gate_on": "filter"},
             r"residual_gate_on must be one of 'action', 'setpoint'",
         ),
-        ({"residual_highpass_order": 2}, r"residual_highpass_order 2: only action_mode='residual'"),
-        ({"residual_limit_m": 3e-6}, r"residual_limit_m 3e-06: only action_mode='residual'"),
+        ({"residual_highpass_order": 2}, r"residual_highpass_order 2: only action_mode 'residual' has it"),
+        ({"residual_limit_m": 3e-6}, r"residual_limit_m 3e-06: only action_mode 'residual' has it"),
         ({"action_mode": "residual", "residual_gate_on": "setpoint"}, "there is no gate to place"),
         ({"hidden_observations": "height"}, "hidden_observations must be a list"),
         ({"hidden_observations": ["heights"]}, r"hidden_observations\[0\] must be one of .*got 'heights'"),

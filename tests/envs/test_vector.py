@@ -149,6 +149,25 @@ def test_nthread_0_steps_on_one_thread_per_core_the_process_may_run_on(monkeypat
     assert MicroGravityLandingVectorEnv(2, condition=3, nthread=2).core.physics.batch.nthread == 2
 
 
+def test_the_gain_scheduling_id_steps_exactly_as_a_sync_vector_env():
+    """The gains action (three numbers a rig, gated at the foot's height) through the vector env is
+    the single envs' through Gymnasium's SyncVectorEnv, bit for bit, past the gate's opening."""
+    env_id, n = "MicroGravityLanding-GainScheduling-v1", 3
+    ours = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point")
+    theirs = SyncVectorEnv([partial(gym.make, env_id) for _ in range(n)])
+    assert ours.action_space == theirs.action_space == gym.spaces.Box(-1.0, 1.0, (n, 3), np.float32)
+    assert data_equivalence(ours.reset(seed=[4, 5, 6]), theirs.reset(seed=[4, 5, 6]), exact=True)
+    rng = np.random.default_rng(0)
+    scaled = []
+    for step in range(300):  # 1.5 s
+        actions = rng.uniform(-1, 1, size=(n, 3)).astype(np.float32)
+        assert data_equivalence(ours.step(actions), theirs.step(actions), exact=True), f"step {step}"
+        scaled.append(ours.unwrapped.core.base.kp_scale[:n].copy())
+    scaled = np.array(scaled)
+    assert (scaled == 1.0).any()  # the gate was shut
+    assert (scaled != 1.0).any()  # then open
+
+
 @pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
 def test_steps_exactly_as_a_sync_vector_env_of_single_envs_through_autoresets(mode):
     """Gymnasium's vector contract, checked against its own SyncVectorEnv: spaces, seeding,

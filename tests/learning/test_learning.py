@@ -220,11 +220,11 @@ def test_a_batch_renormalisation_that_feeds_no_linear_layer_is_refused(layers, m
         fold_batch_renorm(layers(nn, BatchRenorm1d))
 
 
-def _random_policy(seed: int) -> MLPPolicy:
+def _random_policy(seed: int, outputs: int = 1) -> MLPPolicy:
     rng = np.random.default_rng(seed)
     return MLPPolicy(
-        (rng.normal(0, 0.5, (8, 10)), rng.normal(0, 0.5, (1, 8))),
-        (rng.normal(0, 0.1, 8), np.zeros(1)),
+        (rng.normal(0, 0.5, (8, 10)), rng.normal(0, 0.5, (outputs, 8))),
+        (rng.normal(0, 0.1, 8), np.zeros(outputs)),
         "tanh",
         False,
         np.zeros(10),
@@ -294,6 +294,91 @@ def test_a_policy_controller_in_the_speed_env_is_the_residual_env_exactly(highpa
         expected.append(last_y if open_ or gate_on == "action" else 0.0)
     np.testing.assert_allclose(setpoints, expected, rtol=1e-9, atol=1e-18)
     assert np.ptp(setpoints) > 1e-8  # the setpoint did move
+
+
+@pytest.mark.parametrize(
+    ("base", "gate", "hidden"),
+    [
+        ("pid", None, ()),
+        ("pid-dom", None, ()),
+        # condition 3 starts at 55 mm: the gate opens after about 2.2 s; the registered id's hidden entries
+        ("pid-dom", 0.053, ("support_position", "lander_accel", "pad_force")),
+    ],
+)
+def test_a_gains_policy_in_the_speed_env_is_the_gains_env_exactly(base, gate, hidden):
+    """A gains policy deployed in the speed-action environment (its base PID's gains multiplied by
+    2 ** action each decision while the foot reads at or below the gate, the mean of the action
+    shown as the previous one, the hidden entries read 0) is the gains environment's, bit for bit;
+    the gains it sets are the tuned ones times 2 ** action, or as tuned above the gate."""
+    from microg_env.controllers.pid import load_gains
+
+    policy = _random_policy(3, outputs=3)
+    gains = {"action_mode": "gains", "base_controller": base, "decision_period": 5, "residual_gate_m": gate}
+    if hidden:
+        gains["hidden_observations"] = hidden
+    env = MicroGravityLandingEnv(condition=3, **gains)
+    assert env.action_space.shape == (3,)
+    observation, info = env.reset(seed=4)
+    xs, commands, shown, passed = [], [], [], []
+    tuned = load_gains(base)
+    for _ in range(600):  # 3 s
+        assert all(observation[OBSERVATION_INDEX[name]] == 0.0 for name in hidden)
+        action = policy.predict(observation)[0]
+        height_m = float(env.core.observation[0, OBSERVATION_INDEX["height"]]) * OBSERVATION_SCALES["height"]
+        observation, _, _, _, info = env.step(action)
+        pid = env.core.base
+        scaled = (tuned.kp_per_s * pid.kp_scale[0], tuned.ki_per_s2 * pid.ki_scale[0], tuned.kd * pid.kd_scale[0])
+        open_ = gate is None or height_m <= gate
+        a = action.astype(np.float64) if open_ else np.zeros(3)
+        expected = (tuned.kp_per_s * 2.0 ** a[0], tuned.ki_per_s2 * 2.0 ** a[1], tuned.kd * 2.0 ** a[2])
+        np.testing.assert_allclose(scaled, expected, rtol=1e-12)
+        shown.append((observation[OBSERVATION_INDEX["previous_action"]], float(np.mean(action))))
+        passed.append(open_)
+        xs.append(info["x_m"])
+        commands.append(info["command_m_s"])
+    np.testing.assert_allclose(*zip(*shown, strict=True), rtol=1e-6)
+    if gate is not None:
+        assert 0.1 < np.mean(passed) < 0.9  # the gate was shut, then open
+    controller = deployed_controller(policy, gains)
+    deployed = run_episode(MicroGravityLandingEnv(condition=3), controller, seed=4, duration_s=3.0)
+    np.testing.assert_array_equal(deployed.x_m[5::5], np.array(xs))
+    np.testing.assert_array_equal(deployed.command_m_s[5::5], np.array(commands))
+    zero = run_episode(MicroGravityLandingEnv(condition=3), make_controller(base, 1e-3), seed=4, duration_s=3.0)
+    assert np.max(np.abs(np.array(xs) - zero.x_m[5::5])) > 1e-8  # the schedule moved x off the PID's
+
+
+def test_a_gains_policy_controller_refuses_a_base_that_is_not_a_pid_and_a_network_of_another_width():
+    from microg_env.controllers.policy import PolicyController
+    from microg_env.task import ActingSettings
+
+    acting = ActingSettings(action_mode="gains", base_controller="pid-dom", decision_period=5)
+    with pytest.raises(ValueError, match="a gains policy schedules a PID's gains, got base AdaptiveFeedforward"):
+        PolicyController(_random_policy(3, outputs=3), acting, make_controller("adaptive", 1e-3))
+    with pytest.raises(ValueError, match="the policy gives 1 numbers an action, and action_mode 'gains' takes 3"):
+        PolicyController(_random_policy(3), acting, make_controller("pid-dom", 1e-3))
+
+
+def test_a_network_of_another_action_size_than_its_task_is_refused(tmp_path):
+    """A residual card with a network of three outputs (a gains policy's) is named before it runs."""
+    import shutil
+
+    from microg_env.controllers.registry import check_policy_folder, shipped_policy_folder
+
+    folder = tmp_path / "policy"
+    shutil.copytree(shipped_policy_folder("residual-sac-setpoint"), folder)
+    _random_policy(3, outputs=3).save(folder / "policy.npz")
+    with pytest.raises(ValueError, match="its network gives 3 numbers an action, and action_mode 'residual' takes 1"):
+        check_policy_folder(folder)
+
+
+def test_a_zero_gains_action_is_the_pid_exactly():
+    """An all-zero gains action multiplies every gain by exactly 1: the episode is the base PID's in
+    the speed environment, bit for bit."""
+    env = MicroGravityLandingEnv(condition=1, action_mode="gains", base_controller="pid", decision_period=5)
+    env.reset(seed=2)
+    xs = [env.step(np.zeros(3, dtype=np.float32))[4]["x_m"] for _ in range(400)]
+    pid = run_episode(MicroGravityLandingEnv(condition=1), make_controller("pid", 1e-3), seed=2, duration_s=2.0)
+    np.testing.assert_array_equal(pid.x_m[5::5], np.array(xs))
 
 
 def test_an_exported_policy_round_trips_through_its_file(tmp_path):
@@ -805,7 +890,7 @@ def _fifo(folder):
         (_set_env("control_period_s", float("nan")), "control_period_s"),
         (_set_env("residual_limit_m", None), "residual_limit_m"),
         (_set_array("weight_0", np.full((64, 10), "a")), "finite float"),  # was a failure at the first step
-        (_set_array("weight_2", np.zeros((2, 64))), "last layer"),
+        (_set_array("weight_2", np.zeros((2, 64))), "layer shapes do not chain"),
         (_set_array("obs_mean", np.zeros(9)), "obs_mean"),
         (_inflating, "unpacks to"),
         (_fifo, "not a regular file"),

@@ -44,7 +44,7 @@ def _observations(policy: MLPPolicy, rng: np.random.Generator) -> np.ndarray:
 def _gap(policy: MLPPolicy, observations: np.ndarray, session: ort.InferenceSession) -> float:
     exported = session.run(None, {INPUT: observations.astype(np.float64)})[0]
     expected, _ = policy.predict(observations)
-    assert exported.shape == expected.shape == (len(observations), 1)
+    assert exported.shape == expected.shape == (len(observations), policy.action_size)
     assert exported.dtype == np.float32
     return float(np.abs(exported - expected).max())
 
@@ -73,8 +73,10 @@ def test_a_shipped_policys_onnx_file_says_how_it_is_deployed(name, tmp_path):
     assert read["decision_period"] == env["decision_period"]
     assert read["action_mode"] == env["action_mode"]
     assert read["base_controller"] == env["base_controller"]
-    assert read["residual_limit_m"] == env["residual_limit_m"]
+    assert read["residual_limit_m"] == env.get("residual_limit_m", 1e-6)
     assert read["residual_highpass_hz"] == env.get("residual_highpass_hz", 0.0)
+    assert read["residual_gate_m"] == env.get("residual_gate_m")
+    assert read["gain_limit"] == env.get("gain_limit", 2.0)
     assert read["hidden_observations"] == list(deployed_hidden(env))
     assert read["control_period_s"] == 0.001
     assert read["trained_rig"] == {}  # the shipped policies trained on the paper's rig

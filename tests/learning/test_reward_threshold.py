@@ -1,4 +1,4 @@
-"""The residual ids' reward_threshold: the zero residual's mean return over the id's own draws,
+"""The residual and gain-scheduling ids' reward_threshold: the zero action's mean return over the id's own draws,
 seeds 1000-1099, rounded down (as ``training/returns_table.py`` measures it). The hundred returns
 are stored in ``zero_residual_returns.json``; ``python tests/learning/test_reward_threshold.py``
 measures them again (a minute) and rewrites it. A test re-runs three of them: the first seed's,
@@ -20,7 +20,11 @@ from microg_env.task import TaskSettings
 #: The draws each threshold is the mean return over: seeds 1000-1099 (training/returns_table.py).
 FIRST_SEED, RIGS = 1000, 100
 #: Ids a zero residual runs the same for: one base and one draw, scored at each id's reward scale.
-GROUPS = (("MicroGravityLanding-Residual-v1",), ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v7"))
+GROUPS = (
+    ("MicroGravityLanding-Residual-v1",),
+    ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v7"),
+    ("MicroGravityLanding-GainScheduling-v1",),
+)
 RETURNS = Path(__file__).with_name("zero_residual_returns.json")
 
 
@@ -35,7 +39,7 @@ def _zero_residual_runs(env_id: str, seeds: list[int]) -> tuple[list[np.ndarray]
     vector.reset(seed=seeds)
     x, running = [[] for _ in range(rigs)], np.ones(rigs, dtype=bool)
     while running.any():  # an ended rig resets and steps on, uncounted
-        _, _, terminated, truncated, info = vector.step(np.zeros((rigs, 1), dtype=np.float32))
+        _, _, terminated, truncated, info = vector.step(np.zeros(vector.action_space.shape, dtype=np.float32))
         for i in np.flatnonzero(running):
             x[i].append(info["x_m"][i])
         running &= ~(terminated | truncated)
