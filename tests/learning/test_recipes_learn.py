@@ -4,6 +4,7 @@ together), so they carry the ``recipe`` marker, which the default suite leaves o
 addopts): run them with ``python -m pytest -m recipe`` when a recipe, a task or the training code
 changes, and before a release."""
 
+import dataclasses
 import importlib
 import math
 from pathlib import Path
@@ -21,6 +22,38 @@ def _standard_error(differences: np.ndarray) -> float:
     return float(differences.std(ddof=1) / math.sqrt(differences.size))
 
 
+def _train_briefly(tmp_path, **settings):
+    """A run of ``settings`` (TrainSettings' fields) evaluated once, at the end: its exported policy
+    folder is the last model."""
+    from microg_env.learning.train import TrainSettings, train
+
+    run = TrainSettings(
+        log_folder=str(tmp_path / "logs"), eval_freq=10**9, eval_episodes=1, checkpoint_freq=10**9, command="pytest"
+    )
+    return train(dataclasses.replace(run, **settings)) / "policy"
+
+
+def _beats_its_base_at_the_collision(folder, seeds=range(1000, 1040)):
+    """The deployed policy of ``folder`` against its base alone on the task's own draws ``seeds``,
+    paired: x at the collision at least 5 % lower and more than two standard errors of the paired
+    difference below. Returns the deployed policy."""
+    from microg_env.controllers.registry import load_policy, policy_card
+    from microg_env.rollout.batch import evaluate_batch
+    from microg_env.task import ACTING_KEYS, TaskSettings
+
+    task = policy_card(folder)["env_kwargs"]
+    episodes = {key: value for key, value in task.items() if key not in ACTING_KEYS}  # the deployed policy acts
+    learned = load_policy(folder, TaskSettings(**episodes).control_period_s)
+    x = {
+        name: np.array([run.flexible_unit_excursion_collision_m for run in evaluate_batch(episodes, c, seeds)[0]])
+        for name, c in (("learned", learned), ("zero", task["base_controller"]))
+    }
+    differences = x["learned"] - x["zero"]
+    assert x["learned"].mean() < 0.95 * x["zero"].mean(), (x["learned"].mean(), x["zero"].mean())
+    assert differences.mean() < -2.0 * _standard_error(differences), differences
+    return learned
+
+
 def test_the_packaged_recipe_beats_the_zero_residual_return_after_a_short_budget(tmp_path, monkeypatch):
     """The packaged recipe on MicroGravityLanding-Residual-v3, 300 000 steps (about two minutes on two
     cores; the shipped policy took 10^6): its exported policy earns more than the zero residual
@@ -29,21 +62,12 @@ def test_the_packaged_recipe_beats_the_zero_residual_return_after_a_short_budget
     import gymnasium as gym
 
     from microg_env.controllers.registry import check_policy_folder
-    from microg_env.learning.train import TrainSettings, train
 
     monkeypatch.syspath_prepend(str(REPO / "training"))
     episode_return = importlib.import_module("returns_table").episode_return  # the returns table's own
 
     env_id = "MicroGravityLanding-Residual-v3"
-    settings = TrainSettings(
-        env_id=env_id,
-        timesteps=300_000,
-        log_folder=str(tmp_path / "logs"),
-        eval_freq=10**9,  # one evaluation, at the end: the exported policy is the last model
-        checkpoint_freq=10**9,
-        command="pytest",
-    )
-    _, policy = check_policy_folder(train(settings) / "policy")
+    _, policy = check_policy_folder(_train_briefly(tmp_path, env_id=env_id, timesteps=300_000))
     seeds = range(1000, 1020)
     env = gym.make(env_id)
     learned = [episode_return(env, lambda o: policy.predict(o)[0].reshape(-1), s) for s in seeds]
@@ -62,36 +86,13 @@ def test_the_working_ids_recipe_beats_its_zero_residual_at_the_collision_after_a
     cannot tell them apart (it scores x in every period, the long rest on the pad included: the
     shipped policy's paired return over seeds 1000-1019 is the zero residual's, -0.13 +- 0.96), so
     the test reads what the recipe is chosen by."""
-    from microg_env.controllers.registry import load_policy, policy_card
-    from microg_env.learning.train import TrainSettings, train
-    from microg_env.rollout.batch import evaluate_batch
-    from microg_env.task import ACTING_KEYS, TaskSettings
+    from microg_env.controllers.registry import policy_card
 
-    settings = TrainSettings(
-        algo="sac",
-        env_id="MicroGravityLanding-Residual-v6",
-        seed=5,
-        timesteps=40_000,
-        log_folder=str(tmp_path / "logs"),
-        eval_freq=10**9,  # one evaluation, at the end: the exported policy is the last model
-        eval_episodes=1,
-        checkpoint_freq=10**9,
-        command="pytest",
-    )
-    folder = train(settings) / "policy"
+    folder = _train_briefly(tmp_path, algo="sac", env_id="MicroGravityLanding-Residual-v6", seed=5, timesteps=40_000)
     task = policy_card(folder)["env_kwargs"]
     assert task["residual_gate_on"] == "setpoint"
     assert task["base_controller"] == "adaptive-dither"
-    episodes = {key: value for key, value in task.items() if key not in ACTING_KEYS}  # the deployed policy acts
-    learned = load_policy(folder, TaskSettings(**episodes).control_period_s)
-    seeds = range(1000, 1040)
-    x = {
-        name: np.array([run.flexible_unit_excursion_collision_m for run in evaluate_batch(episodes, c, seeds)[0]])
-        for name, c in (("learned", learned), ("zero", task["base_controller"]))
-    }
-    differences = x["learned"] - x["zero"]
-    assert x["learned"].mean() < 0.95 * x["zero"].mean(), (x["learned"].mean(), x["zero"].mean())
-    assert differences.mean() < -2.0 * _standard_error(differences), differences
+    _beats_its_base_at_the_collision(folder)
 
 
 def test_the_gain_scheduling_recipe_improves_return_and_collision_after_a_short_budget(tmp_path, monkeypatch):
@@ -102,39 +103,14 @@ def test_the_gain_scheduling_recipe_improves_return_and_collision_after_a_short_
     1000-1039, each by more than two standard errors of the paired difference, x by at least 5 %."""
     import gymnasium as gym
 
-    from microg_env.controllers.registry import load_policy, policy_card
-    from microg_env.learning.train import TrainSettings, train
-    from microg_env.rollout.batch import evaluate_batch
-    from microg_env.task import ACTING_KEYS, TaskSettings
-
     monkeypatch.syspath_prepend(str(REPO / "training"))
     episode_return = importlib.import_module("returns_table").episode_return
     env_id = "MicroGravityLanding-GainScheduling-v1"
-    settings = TrainSettings(
-        env_id=env_id,
-        timesteps=40_000,
-        log_folder=str(tmp_path / "logs"),
-        eval_freq=10**9,  # one evaluation, at the end: the exported policy is the last model
-        eval_episodes=1,
-        checkpoint_freq=10**9,
-        command="pytest",
-    )
-    folder = train(settings) / "policy"
-    task = policy_card(folder)["env_kwargs"]
-    episodes = {key: value for key, value in task.items() if key not in ACTING_KEYS}
-    learned = load_policy(folder, TaskSettings(**episodes).control_period_s)
-    seeds = range(1000, 1040)
-    x = {
-        name: np.array([run.flexible_unit_excursion_collision_m for run in evaluate_batch(episodes, c, seeds)[0]])
-        for name, c in (("learned", learned), ("zero", task["base_controller"]))
-    }
-    differences = x["learned"] - x["zero"]
-    assert x["learned"].mean() < 0.95 * x["zero"].mean(), (x["learned"].mean(), x["zero"].mean())
-    assert differences.mean() < -2.0 * _standard_error(differences), differences
-    env, policy = gym.make(env_id), learned.policy
+    learned = _beats_its_base_at_the_collision(_train_briefly(tmp_path, env_id=env_id, timesteps=40_000))
+    env, policy, seeds = gym.make(env_id), learned.policy, range(1000, 1020)
     returns = {
-        "learned": [episode_return(env, lambda o: policy.predict(o)[0].reshape(-1), s) for s in seeds[:20]],
-        "zero": [episode_return(env, lambda o: np.zeros(3, dtype=np.float32), s) for s in seeds[:20]],
+        "learned": [episode_return(env, lambda o: policy.predict(o)[0].reshape(-1), s) for s in seeds],
+        "zero": [episode_return(env, lambda o: np.zeros(3, dtype=np.float32), s) for s in seeds],
     }
     gain = np.array(returns["learned"]) - np.array(returns["zero"])
     assert gain.mean() > 2.0 * _standard_error(gain), gain
