@@ -92,6 +92,10 @@ MIXED_SENSORS = "mixed"
 #: maximum (Section 4.1), a fixed unit of the action whatever rig is simulated (a slower drive
 #: saturates on its own).
 MAX_SPEED_M_S = ScrewStageParams().max_speed_m_per_s
+#: The speeds that the speed action +-1 may stand for (the environment's ``speed_limit_m_s``), m/s:
+#: from 1 mm/s, a few times the slowest descent's velocity error a period leaves, up to the drive's
+#: MAX_SPEED_M_S (the default). A limit below the largest speed a task needs saturates there.
+SPEED_LIMIT_RANGE_M_S = (1e-3, MAX_SPEED_M_S)
 #: What an action is: the drive's speed reference (``speed``), an x setpoint on a base
 #: controller (``residual``), or the gains of a base PID (``gains``).
 ACTION_MODES = ("speed", "residual", "gains")
@@ -259,6 +263,14 @@ def action_size(action_mode: str) -> int:
 def action_space(action_mode: str = "speed") -> spaces.Box:
     """One rig's action in ``action_mode``, in [-1, 1] (:func:`action_size` numbers, units above)."""
     return spaces.Box(-1.0, 1.0, shape=(action_size(action_mode),), dtype=np.float32)
+
+
+def speed_actions(actions: np.ndarray, limit_m_s: float) -> np.ndarray:
+    """The drive's actions (the speed over :data:`MAX_SPEED_M_S`) that speed actions in [-1, 1]
+    stand for at ``speed_limit_m_s`` ``limit_m_s``: ``actions * (limit / MAX_SPEED_M_S)`` as
+    float32, the type a controller returns, so that the environment commands what a policy's
+    controller does, bit for bit; at the default limit a float32 action is itself."""
+    return np.asarray(actions * (limit_m_s / MAX_SPEED_M_S), dtype=np.float32)
 
 
 def gain_scales(actions: np.ndarray, limit: float) -> np.ndarray:

@@ -22,10 +22,12 @@ from microg_env.interface import (
     GAIN_BASES,
     GAIN_LIMIT,
     MAX_GAIN_LIMIT,
+    MAX_SPEED_M_S,
     MIXED_SENSORS,
     RESIDUAL_HIGHPASS_RANGE_HZ,
     RESIDUAL_LIMIT_M,
     SENSOR_SETS,
+    SPEED_LIMIT_RANGE_M_S,
     hidden_entries,
     highpass_order,
     residual_gate,
@@ -48,13 +50,13 @@ from microg_env.validate import FieldError
 @dataclass(frozen=True)
 class ActingSettings:
     """How a policy acts on the rig, one record checked once when made: what its action means (the
-    drive's speed command, a setpoint for x that a classical ``base_controller`` holds, scaled to
-    ``residual_limit_m``, or multipliers of a base PID's gains up to ``gain_limit``), how often it
-    acts (every ``decision_period`` control periods), how the residual is high-passed (a corner and
-    one or two stages) and gated (acting only while the foot reads at most ``residual_gate_m`` high,
-    the gate on the action or the setpoint), and the observation entries it reads as 0. The
-    environment (:class:`TaskSettings`), the policy loader and the policy cards read it; its fields
-    are the cards' :data:`ACTING_KEYS`."""
+    drive's speed command up to ``speed_limit_m_s``, a setpoint for x that a classical
+    ``base_controller`` holds, scaled to ``residual_limit_m``, or multipliers of a base PID's gains
+    up to ``gain_limit``), how often it acts (every ``decision_period`` control periods), how the
+    residual is high-passed (a corner and one or two stages) and gated (acting only while the foot
+    reads at most ``residual_gate_m`` high, the gate on the action or the setpoint), and the
+    observation entries it reads as 0. The environment (:class:`TaskSettings`), the policy loader
+    and the policy cards read it; its fields are the cards' :data:`ACTING_KEYS`."""
 
     action_mode: str = "speed"
     base_controller: str = "pid"
@@ -65,6 +67,7 @@ class ActingSettings:
     residual_gate_m: float | None = None
     residual_gate_on: str = "action"
     gain_limit: float = GAIN_LIMIT
+    speed_limit_m_s: float = MAX_SPEED_M_S
     hidden_observations: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
@@ -89,6 +92,7 @@ class ActingSettings:
         put("gain_limit", validate.between("gain_limit", self.gain_limit, 1.0, MAX_GAIN_LIMIT))
         if self.gain_limit == 1.0:
             raise FieldError("gain_limit 1.0: the action would move no gain (it must be above 1)", "gain_limit")
+        put("speed_limit_m_s", validate.between("speed_limit_m_s", self.speed_limit_m_s, *SPEED_LIMIT_RANGE_M_S, "m/s"))
         if self.action_mode == "gains" and self.base_controller not in GAIN_BASES:
             raise FieldError(
                 f"base_controller {self.base_controller!r}: action_mode='gains' schedules the gains of "
@@ -121,6 +125,7 @@ class ActingSettings:
 _OPTION_MODES = {
     "base_controller": ("residual", "gains"),
     "gain_limit": ("gains",),
+    "speed_limit_m_s": ("speed",),
     **{option.name: ("residual",) for option in fields(ActingSettings) if option.name.startswith("residual_")},
     "residual_gate_m": ("residual", "gains"),  # a gains action is gated as a residual is
 }

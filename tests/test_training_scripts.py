@@ -72,7 +72,11 @@ def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):
     monkeypatch.syspath_prepend(str(TRAINING))
     returns_table = importlib.import_module("returns_table")
     newest_first = tuple(f"MicroGravityLanding-Residual-v{v}" for v in (7, 6, 5, 4, 3, 2, 1))
-    assert (*newest_first, "MicroGravityLanding-GainScheduling-v1") == returns_table.ENV_IDS
+    assert (
+        *newest_first,
+        "MicroGravityLanding-GainScheduling-v1",
+        "MicroGravityLanding-Command-v1",
+    ) == returns_table.ENV_IDS
     returns_table.policy_actor("MicroGravityLanding-Residual-v4", "residual-sac-adaptive")
     returns_table.policy_actor("MicroGravityLanding-Residual-v6", "residual-sac-setpoint")
     with pytest.raises(ValueError, match="trained with residual_gate_on 'action'"):
@@ -173,3 +177,33 @@ def test_the_gain_scheduling_task_ranks_the_ladder_as_its_metric_does(monkeypatc
         paid = returns_table.episode_return(env, lambda obs, action=action: action, 1000)
         assert offline[0] == pytest.approx(paid, rel=1e-9), name
     assert by_name["Ki x1/2"].collision_m.mean() > by_name["pid-dom (zero action)"].collision_m.mean()
+
+
+@pytest.mark.slow
+def test_the_command_task_ranks_the_ladder_as_its_metric_does(monkeypatch):
+    """training/reward_ladder.py on 4 of the command id's draws: its return ranks the sixteen rungs
+    (five classical controllers, the PID under five constant schedules, the zero action, the shipped
+    `command-ppo` x0.5, x1, x1.5 and x-1, random) as x at the collision does (Spearman >= 0.9); the
+    zero action (the support held still) reaches the guide's end, the policy does not; the returns
+    scored offline are those the command environment pays for the zero action and the policy."""
+    import gymnasium as gym
+
+    monkeypatch.syspath_prepend(str(TRAINING))
+    ladder = importlib.import_module("reward_ladder")
+    returns_table = importlib.import_module("returns_table")
+    env_id, policy = "MicroGravityLanding-Command-v1", "command-ppo"
+    rungs = ladder.run_ladder(env_id, policy, range(1000, 1004))
+    assert len(rungs) == 16
+    result = ladder.report(env_id, policy, rungs, [1e-6])["by_scale"]["1e-06"]
+    assert result["spearman"] >= ladder.MIN_SPEARMAN
+    env = gym.make(env_id)
+    limit = env.unwrapped.core.x_limit_m
+    by_name = {rung.name: rung for rung in rungs}
+    assert (by_name["zero action"].collision_m > 0.9 * limit).all()  # the support held still: the guide's end
+    assert (by_name[f"{policy} x1"].collision_m < 1e-4).all()
+    for name, act in (
+        ("zero action", lambda obs: np.zeros(1, dtype=np.float32)),
+        (f"{policy} x1", returns_table.policy_actor(env_id, policy)),
+    ):
+        offline = by_name[name].returns(1e-6, limit, 1, contact_only=False)
+        assert offline[0] == pytest.approx(returns_table.episode_return(env, act, 1000), rel=1e-9), name

@@ -1,5 +1,5 @@
-"""The returns table of the learning tasks (MicroGravityLanding-GainScheduling-v1, -Residual-v7 to -v1): what
-each controller earns.
+"""The returns table of the learning tasks (MicroGravityLanding-Command-v1, -GainScheduling-v1, -Residual-v7 to
+-v1): what each controller earns.
 
 Every controller runs in the residual environment with the id's defaults (a residual x setpoint on
 `adaptive`, held 5 control periods: +-1 um in v1, +-3 um high-passed at 2 Hz in v2, twice in v3,
@@ -11,11 +11,14 @@ residual`` (the id's base alone), the other classical controllers as the base wi
 trained on this task). A
 return is the episode's undiscounted sum of rewards; the table gives mean ± std over seeds from
 1000, the comparison's test seeds. On the gain-scheduling id the rows are ``zero action`` (its base PID
-as tuned) and the other PID as its base. ``training`` draws the id's own schedules; the other scenarios
-are the comparison's, outside the training draws. The id's ``reward_threshold`` is the zero
-residual's mean return on ``training`` over 100 seeds (``--seeds 100 --scenarios training``),
-rounded down: a policy above it earns more than its base controller alone on the task it was
-trained on. Returns grow with an episode's length, so compare controllers on the same seeds.
+as tuned) and the other PID as its base. On the command id, which has no base, each classical
+controller commands the drive itself (at the drive's own action unit, reading every entry: neither
+changes the draws) and ``pid`` is the ``reference`` row. ``training`` draws the id's own schedules;
+the other scenarios are the comparison's, outside the training draws. The id's ``reward_threshold``
+is the zero residual's (zero action's, the reference's) mean return on ``training`` over 100 seeds
+(``--seeds 100 --scenarios training``), rounded down: a policy above it earns more than its base
+controller alone (the paper's PID) on the task it was trained on. Returns grow with an episode's
+length, so compare controllers on the same seeds.
 
 Run: ``python training/returns_table.py [--env ID] [--seeds 5] [--scenarios training,condition-1] [--policies NAME]``.
 """
@@ -34,20 +37,24 @@ from microg_env.controllers.registry import (
     ACTING_KEYS,
     check_policy_folder,
     is_policy_folder,
+    make_controller,
     shipped_policy_folder,
 )
 from microg_env.experiments.comparison import TEST_SEED
-from microg_env.interface import GAIN_BASES, action_size
+from microg_env.interface import GAIN_BASES, MAX_SPEED_M_S, action_size
 from microg_env.learning.train import ENV_IDS as TRAINED_IDS
 from microg_env.scenarios import comparison_scenarios
 from microg_env.task import TaskSettings
 
 #: The learning tasks' ids (those ``microg train`` trains on): the residual ones, the newest first (the
-#: default), then the gain-scheduling one.
+#: default), then the gain-scheduling one and the command one (a speed id with draws of its own).
 ENV_IDS = (
     *reversed([env_id for env_id in TRAINED_IDS if gym.spec(env_id).kwargs.get("action_mode") == "residual"]),
     *[env_id for env_id in TRAINED_IDS if gym.spec(env_id).kwargs.get("action_mode") == "gains"],
+    *[env_id for env_id in TRAINED_IDS if "action_mode" not in gym.spec(env_id).kwargs and gym.spec(env_id).kwargs],
 )
+#: A command id's classical rows run at the drive's own action unit, every entry shown.
+DRIVE_ACTING = {"speed_limit_m_s": MAX_SPEED_M_S, "hidden_observations": ()}
 #: The classical controllers run as the base with a zero residual, a row each.
 CLASSICAL = ("pid", "feedforward", "adaptive", "adaptive-dither", "oracle")
 SCENARIOS = ("training", *comparison_scenarios())
@@ -64,10 +71,19 @@ def episode_return(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], seed: 
     return total
 
 
+def is_command_id(env_id: str) -> bool:
+    """Whether ``env_id``'s action is the drive's speed command (no base controller)."""
+    return gym.spec(env_id).kwargs.get("action_mode", "speed") == "speed"
+
+
 def base_rows(env_id: str) -> dict[str, str]:
     """The classical controllers' rows of ``env_id``'s table, by name: the id's own base controller
-    is its ``zero residual`` (``zero action``) row; a gains id's bases are the PIDs."""
+    is its ``zero residual`` (``zero action``) row; a gains id's bases are the PIDs; on a command id
+    the paper's PID is the ``reference``."""
     kwargs = gym.spec(env_id).kwargs
+    if is_command_id(env_id):
+        # the oracle, told each episode's plant by a base's environment, has none to tell it here
+        return {("pid (reference)" if name == "pid" else name): name for name in CLASSICAL if name != "oracle"}
     own, gains = kwargs["base_controller"], kwargs["action_mode"] == "gains"
     zero = "zero action" if gains else "zero residual"
     return {(f"{zero} ({name})" if name == own else name): name for name in (GAIN_BASES if gains else CLASSICAL)}
@@ -75,11 +91,15 @@ def base_rows(env_id: str) -> dict[str, str]:
 
 def make_env(env_id: str, scenario: str, base: str | None = None) -> gym.Env:
     """The id's environment on ``scenario`` ("training": its own draws) with ``base`` (by default the
-    id's own) under the residual."""
-    base = gym.spec(env_id).kwargs["base_controller"] if base is None else base
+    id's own) under the residual; on a command id, for a classical ``base``, at the drive's own
+    action unit with every entry shown (:data:`DRIVE_ACTING`)."""
+    if is_command_id(env_id):
+        kwargs = DRIVE_ACTING if base is not None else {}
+    else:
+        kwargs = {"base_controller": gym.spec(env_id).kwargs["base_controller"] if base is None else base}
     if scenario == "training":
-        return gym.make(env_id, base_controller=base)
-    return gym.make(env_id, base_controller=base, scenario_sampler=None, scenario=comparison_scenarios()[scenario])
+        return gym.make(env_id, **kwargs)
+    return gym.make(env_id, **kwargs, scenario_sampler=None, scenario=comparison_scenarios()[scenario])
 
 
 def policy_actor(env_id: str, name: str) -> Callable[[np.ndarray], np.ndarray]:
@@ -111,12 +131,15 @@ def returns(env_id: str, row: str, scenario: str, seeds: int) -> list[float]:
     """The returns of controller ``row`` (a :func:`base_rows` name, "random" or a policy) on ``scenario``."""
     bases = base_rows(env_id)
     env = make_env(env_id, scenario, bases.get(row))
-    size = action_size(gym.spec(env_id).kwargs["action_mode"])
+    size = action_size(env.unwrapped.settings.action_mode)
     values = []
     for seed in range(TEST_SEED, TEST_SEED + seeds):
         if row == "random":
             rng = np.random.default_rng(seed)
             act = lambda obs, rng=rng: rng.uniform(-1.0, 1.0, size=size).astype(np.float32)  # noqa: E731
+        elif row in bases and is_command_id(env_id):
+            controller = make_controller(bases[row], env.unwrapped.settings.control_period_s)
+            act = lambda obs, c=controller: c(obs[None])[0].astype(np.float32)  # noqa: E731
         elif row in bases:
             act = lambda obs: np.zeros(size, dtype=np.float32)  # noqa: E731
         else:

@@ -6,7 +6,10 @@ with a zero residual (the zero residual on the id's base is the base itself), th
 trained and with its action scaled by 0.5, 1.5 and -1, and uniform random actions. On the
 gain-scheduling id: its base PID as tuned (the zero action), the other classical controllers,
 constant gain schedules (:data:`SCHEDULES`), uniform random actions and, with ``--policy``, a policy
-trained on it, scaled as above. Every rung runs in the speed-action environment through
+trained on it, scaled as above. On the command id (a speed action, no base): the paper's PID (the
+reference), the other classical controllers, the PID under the constant gain schedules, the zero
+action (the support held still), uniform random actions and a policy, scaled as above. Every rung
+runs in the speed-action environment through
 :class:`~microg_env.controllers.policy.PolicyController`, which acts as the training environment
 does, so one rollout gives both the headline metric (x at the first collision, as ``microg
 compare`` reports it) and every control period's true x, from which the return is scored for each
@@ -53,8 +56,12 @@ SCHEDULES = {
     "Ki x1/2": (0.0, -1.0, 0.0),
     "all x1/2": (-1.0, -1.0, -1.0),
 }
-#: The name of the rung that is an id's base controller alone, by action mode.
-ZERO = {"residual": "zero residual", "gains": "zero action"}
+#: The name of the rung that is an id's base controller alone (on a command id: the paper's PID), by action mode.
+ZERO = {"residual": "zero residual", "gains": "zero action", "speed": "reference"}
+#: A command id's classical rungs, each commanding the drive itself.
+COMMAND_CLASSICAL = ("pid", "pid-dom", *CLASSICAL[1:])
+#: How a command id's rungs run the PID under a constant gain schedule.
+SCHEDULED_PID = {"action_mode": "gains", "base_controller": "pid"}
 #: The shipped policy's action scaled: rungs named "policy x<scale>".
 SCALES = (0.5, 1.0, 1.5, -1.0)
 #: Rank agreement the ladder must reach (Spearman's rho of mean return against negated mean metric).
@@ -138,16 +145,28 @@ def speed_env(env_id: str) -> MicroGravityLandingEnv:
     return MicroGravityLandingEnv(**speed_settings(env_id))
 
 
+def action_mode(env_id: str) -> str:
+    """What ``env_id``'s action is (a command id registers the default, the speed)."""
+    return gym.spec(env_id).kwargs.get("action_mode", "speed")
+
+
 def controllers(env_id: str, policy: str | None, seed: int) -> dict[str, object]:
-    """The ladder's rungs for ``env_id`` (a residual or gains id; ``policy`` one trained on it, or
-    None): name -> a fresh controller."""
+    """The ladder's rungs for ``env_id`` (a residual, gains or command id; ``policy`` one trained on
+    it, or None): name -> a fresh controller."""
     kwargs = gym.spec(env_id).kwargs
-    mode = kwargs["action_mode"]
+    mode = action_mode(env_id)
     period = MicroGravityLandingEnv().settings.control_period_s
-    base = kwargs["base_controller"]
     rungs: dict[str, object] = {}
-    for name in (*CLASSICAL, base) if base not in CLASSICAL else CLASSICAL:
-        rungs[f"{name} ({ZERO[mode]})" if name == base else name] = make_controller(name, period)
+    if mode == "speed":
+        for name in COMMAND_CLASSICAL:
+            rungs[f"{name} ({ZERO[mode]})" if name == "pid" else name] = make_controller(name, period)
+        for name, action in SCHEDULES.items():
+            rungs[f"pid {name}"] = deployed_controller(ConstantPolicy(action), SCHEDULED_PID)
+        rungs["zero action"] = deployed_controller(ConstantPolicy((0.0,)), kwargs)
+    else:
+        base = kwargs["base_controller"]
+        for name in (*CLASSICAL, base) if base not in CLASSICAL else CLASSICAL:
+            rungs[f"{name} ({ZERO[mode]})" if name == base else name] = make_controller(name, period)
     if mode == "gains":
         for name, action in SCHEDULES.items():
             rungs[name] = deployed_controller(ConstantPolicy(action), kwargs)
@@ -194,8 +213,8 @@ def spearman(a: Sequence[float], b: Sequence[float]) -> float:
 def report(env_id: str, policy: str | None, rungs: list[Rung], scales: Sequence[float]) -> dict:
     env = speed_env(env_id)
     kwargs = gym.spec(env_id).kwargs
-    limit, period = env.core.x_limit_m, int(kwargs["decision_period"])
-    base = next(r for r in rungs if r.name.endswith(f"({ZERO[kwargs['action_mode']]})"))
+    limit, period = env.core.x_limit_m, int(kwargs.get("decision_period", 1))
+    base = next(r for r in rungs if r.name.endswith(f"({ZERO[action_mode(env_id)]})"))
     shipped = None if policy is None else next(r for r in rungs if r.name == f"{policy} x1")
     metric = {r.name: float(np.mean(r.collision_m)) for r in rungs}
     out: dict = {"env": env_id, "policy": policy, "episodes": len(base.x_m), "metric_m": metric, "by_scale": {}}
@@ -246,7 +265,7 @@ def render(result: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="MicroGravityLanding-Residual-v6", help="a residual or gains id")
+    parser.add_argument("--env", default="MicroGravityLanding-Residual-v6", help="a residual, gains or command id")
     parser.add_argument(
         "--policy", help="a policy trained on it (shipped or a folder; default residual-sac-setpoint on a residual id)"
     )
@@ -255,9 +274,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scales", default="1e-8,1e-7,1e-6", help="reward scales x0 to score, m")
     parser.add_argument("--json", help="also write the result here")
     args = parser.parse_args(argv)
-    mode = gym.spec(args.env).kwargs.get("action_mode")
-    if mode not in ZERO:
-        parser.error(f"--env: {args.env} is not a residual or gains id")
+    if args.env not in gym.registry:
+        parser.error(f"--env: {args.env!r} is not a registered id")
+    mode = action_mode(args.env)
+    if mode == "speed" and not gym.spec(args.env).kwargs:
+        parser.error(f"--env: {args.env} draws no training schedules; name a residual, gains or command id")
     if args.policy is None and mode == "residual":
         args.policy = "residual-sac-setpoint"
     scales = [float(s) for s in args.scales.split(",")]

@@ -3,8 +3,9 @@ validation episodes, seeds 500-699 of the validation schedules (``scenarios.VALI
 30-50 mm starts) with the run's plants and drives drawn (its ``domain_randomization``), never a
 test seed. The rule is the lowest selection cost (``analysis.summary.selection_cost``: mean
 |compensation error| [%] + mean x at the collision / 10 um), the statistic the held-out comparison
-reports; the base controller alone (a zero residual) is the line, and each run's mean x at the
-collision is also given as a ratio to the zero residual's on the same episodes. ``--sensor-set``
+reports; the base controller alone (a zero residual or gains action) is the line, or on a speed
+task (no base) the paper's PID, and each run's mean x at the collision is also given as a ratio to
+the line's on the same episodes. ``--sensor-set``
 validates on another rig than the runs' own (``paper``: the paper's sensors).
 
 Run: ``python training/select_seed.py [--episodes N] [--sensor-set paper]
@@ -59,8 +60,6 @@ def main(argv: list[str]) -> int:
     except ValueError as error:
         sys.exit(f"select_seed: {error}")
     task = cards[0]["env_kwargs"]
-    if task.get("action_mode") not in ("residual", "gains"):
-        sys.exit(f"{runs[0]}: not a residual or gains policy; the seed selection compares policies on one base")
     for run, card in zip(runs, cards, strict=True):
         if json.dumps(card["env_kwargs"], sort_keys=True) != json.dumps(task, sort_keys=True):
             sys.exit(f"{run}: trained on another task than {runs[0]}; compare runs of one task")
@@ -69,8 +68,13 @@ def main(argv: list[str]) -> int:
     settings = validation_settings(task)
     period = TaskSettings(**settings).control_period_s
     seeds = range(VALIDATION_SEED, VALIDATION_SEED + args.episodes)
-    zero = "zero action" if task["action_mode"] == "gains" else "zero residual"
-    rows = {f"{zero} ({task['base_controller']})": (task["base_controller"], "")}  # first: the line
+    mode = task.get("action_mode", "speed")
+    if mode == "speed":  # no base: the paper's PID is the line
+        zero, first = "pid", ("pid (the paper's)", "pid")
+    else:
+        zero = "zero action" if mode == "gains" else "zero residual"
+        first = (f"{zero} ({task['base_controller']})", task["base_controller"])
+    rows = {first[0]: (first[1], "")}  # first: the line
     for run, card in zip(runs, cards, strict=True):
         rows[run] = (load_policy(Path(run) / "policy", period), card.get("seed", ""))
     rig = task.get("sensor_set", "extended")
@@ -84,7 +88,7 @@ def main(argv: list[str]) -> int:
     for name, (controller, seed) in rows.items():
         row = scores(validation_runs(task, controller, args.episodes)[0])
         costs[name] = row["cost"]
-        if line is None:  # the zero action's, the first row
+        if line is None:  # the line's, the first row
             line = row["collision_um"]
         print(
             f"| {name} | {seed} | {row['cost']:.4f} | {row['compensation_error_pct']:.4f} | "

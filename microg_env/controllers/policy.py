@@ -42,6 +42,7 @@ from microg_env.interface import (
     gated_actions,
     gated_setpoint,
     highpass_gain,
+    speed_actions,
 )
 from microg_env.params import CONTROL_PERIOD_S
 from microg_env.task import ActingSettings
@@ -196,7 +197,7 @@ class PolicyController(VectorController):
     while commanding the drive every period; in ``action_mode="gains"`` it multiplies the ``base``
     PID's gains (:func:`~microg_env.interface.gain_scales`; the mean of its numbers is the
     observation's previous action, as in the environment); in speed mode the action is the speed
-    command, held.
+    command up to ``speed_limit_m_s``, held.
     The setpoint is the action high-passed (:func:`~microg_env.interface.residual_setpoint`) and
     gated (:func:`~microg_env.interface.gated_setpoint`) as the settings say, and the
     ``hidden_observations`` read 0 to the policy. An all-zero residual is exactly the base
@@ -272,7 +273,7 @@ class PolicyController(VectorController):
                     (self._filtered_action, self._setpoint_m, self._stage_m if self._second_stage else None),
                 )
         if self.base is None:
-            return self._action[ids]
+            return speed_actions(self._action[ids], self.acting.speed_limit_m_s)
         command = self.base.act(rows, ids)  # grown with this controller (a part of it)
         self._base_command_m_s[ids] = command.astype(np.float64) * MAX_SPEED_M_S
         return command

@@ -47,7 +47,8 @@ class MicroGravityLandingEnv(gym.Env):
     ``Box(-1, 1, (1,), float32)`` (``(3,)`` in gains mode), held for ``decision_period`` control periods:
 
     * ``action_mode="speed"`` (default): the servo drive's speed reference for the support, scaled
-      to +-1250 mm/s (the mechanism's maximum, Section 4.1), up positive;
+      to +-``speed_limit_m_s`` (by default 1250 mm/s, the mechanism's maximum, Section 4.1), up
+      positive;
     * ``action_mode="residual"``: a setpoint for x, scaled to +-``residual_limit_m`` (1 um), on a
       base controller (``base_controller``: ``pid``, ``pid-dom``, ``feedforward``, ``adaptive``,
       ``adaptive-dither`` or ``oracle``, which is told each episode's plant) that commands the
@@ -137,6 +138,7 @@ class MicroGravityLandingEnv(gym.Env):
     | ``residual_gate_m`` | foot height at or below which the residual or gains action acts, m (None: always) |
     | ``residual_gate_on`` | what the gate passes: ``"action"`` (then high-passed) or the high-passed ``"setpoint"`` |
     | ``gain_limit`` | the gain multiplier an action of +1 stands for (-1: its inverse), in (1, 10] |
+    | ``speed_limit_m_s`` | the speed a speed action of +1 stands for, m/s: 0.001 to 1.25 (the default) |
     | ``imperfections`` | which non-ideal effects are on (or their flags as a dict) |
     | ``domain_randomization`` | ``DomainRandomization``; ``True``, ``"full"``, ``"wider"``: its presets |
     | ``sensor_set`` | ``"paper"``: ruler and encoder only (pad force, accelerometer read 0); ``"mixed"``: drawn |

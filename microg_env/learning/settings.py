@@ -27,6 +27,7 @@ ENV_IDS = (
     "MicroGravityLanding-Residual-v6",
     "MicroGravityLanding-Residual-v7",
     "MicroGravityLanding-GainScheduling-v1",
+    "MicroGravityLanding-Command-v1",
 )
 #: What training needs installed, named when it is missing.
 TRAIN_EXTRA = "microg train needs the train extra: pip install 'microg-env[train]'"

@@ -602,7 +602,7 @@ class _Run:
         verdict = ""
         if best is not None and base is not None:
             verdict = "; it beats" if best < base else "; it does NOT beat"
-            verdict += f" the base controller alone ({base:.4g})"
+            verdict += f" {self._line_to_beat()[1]} ({base:.4g})"
         best = "none (every evaluation failed)" if best is None else f"{best:.4g}"
         self.log(
             f"finished: {model.num_timesteps} steps in {self.wall_s():.1f} s wall over "
@@ -655,15 +655,27 @@ class _Run:
         return runs, failure_rate, selection_cost(runs)
 
     def base_cost(self) -> None:
-        """A residual or gains policy's line to beat: its base controller alone (a zero action) on
-        the validation schedules, once per run, logged and kept in ``latest.json``."""
-        if self.params.env_kwargs.get("action_mode") not in ("residual", "gains") or "base_cost" in self.state:
+        """A policy's line to beat on the validation schedules, once per run, logged and kept in
+        ``latest.json``: a residual or gains policy's base controller alone (a zero action); a speed
+        policy's, the paper's PID."""
+        if "base_cost" in self.state:
             return
-        base = self.params.env_kwargs.get("base_controller", "pid")
+        base, what = self._line_to_beat()
         period = float(self.params.env_kwargs.get("control_period_s", CONTROL_PERIOD_S))
         *_, cost = self.validate(make_controller(base, period, self.rig()))  # what a zero action leaves it
         self.state["base_cost"] = _json_number(cost)
-        self.log(f"the base controller alone ({base}, a zero action): cost {_show(cost, '.4g')}, the line to beat")
+        detail = "" if self._speed_policy() else f" ({base}, a zero action)"
+        self.log(f"{what}{detail}: cost {_show(cost, '.4g')}, the line to beat")
+
+    def _speed_policy(self) -> bool:
+        """Whether the run's policy commands the drive's speed itself (no base controller)."""
+        return self.params.env_kwargs.get("action_mode", "speed") == "speed"
+
+    def _line_to_beat(self) -> tuple[str, str]:
+        """The controller a run's policy is to beat, and what the log calls it."""
+        if self._speed_policy():
+            return "pid", "the paper's PID"
+        return self.params.env_kwargs.get("base_controller", "pid"), "the base controller alone"
 
     def evaluate(self, model) -> None:
         """The deterministic policy on the validation schedules, by the project's metrics."""

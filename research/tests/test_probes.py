@@ -24,6 +24,7 @@ def _probe_paths(monkeypatch):
         ("dither_probe", ["--amplitudes", "0.05,sac", "--seeds", "1", "--workers", "1"], "| sac | "),
         ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
         ("fifty_gram_joint_fit", [], "| joint, relative | -7.08 |"),
+        ("plain_sb3", ["--seeds", "0", "--steps", "64", "--episodes", "1"], "| 0 | 64 | "),
         (
             "drive_scheme_held_out",
             ["--scenarios", "heavy-second", "--seeds", "1000", "--duration", "0.3"],

@@ -30,9 +30,10 @@ from microg_env.rollout.spec import RunSpec
 from microg_env.task import ACTING_KEYS
 
 #: The rigs each shipped policy reads all it read in training on: the v1-v4 residuals read the pad
-#: force and the accelerometer, which the paper's rig lacks; the gated ones and the gain schedule
-#: hide them from the agent.
+#: force and the accelerometer, which the paper's rig lacks; the gated ones, the gain schedule and
+#: the command hide them from the agent.
 RUNS_ON = {
+    "command-ppo": {"extended", "paper"},
     "gains-ppo": {"extended", "paper"},
     "residual-ppo": {"extended"},
     "residual-ppo-adaptive": {"extended"},

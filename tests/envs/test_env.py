@@ -65,11 +65,14 @@ def test_stable_baselines3_check_env():
     sb3_checker.check_env(MicroGravityLandingEnv(condition=2), warn=False)
 
 
-def test_the_gain_scheduling_id_passes_both_checkers():
-    """Its three-number action included; SB3's checker warns of nothing either."""
+@pytest.mark.parametrize(
+    ("env_id", "width"), [("MicroGravityLanding-GainScheduling-v1", 3), ("MicroGravityLanding-Command-v1", 1)]
+)
+def test_the_gain_scheduling_and_command_ids_pass_both_checkers(env_id, width):
+    """The gains id's three-number action included; SB3's checker warns of nothing either."""
     sb3_checker = pytest.importorskip("stable_baselines3.common.env_checker")
-    env = gym.make("MicroGravityLanding-GainScheduling-v1").unwrapped
-    assert env.action_space.shape == (3,)
+    env = gym.make(env_id).unwrapped
+    assert env.action_space.shape == (width,)
     check_env(env, skip_render_check=True)
     sb3_checker.check_env(env, warn=True)
 
@@ -622,6 +625,13 @@ def test_bad_actions_raise(action):
         ({"action_mode": "gains", "gain_limit": 1.0}, r"gain_limit 1.0: the action would move no gain"),
         ({"action_mode": "gains", "gain_limit": 20.0}, r"gain_limit must be in \[1, 10\], got 20.0"),
         ({"action_mode": "gains", "gain_limit": "2"}, r"gain_limit"),
+        (
+            {"action_mode": "residual", "speed_limit_m_s": 0.1},
+            r"speed_limit_m_s 0.1: only action_mode 'speed' has it \(action_mode is 'residual'\)",
+        ),
+        ({"speed_limit_m_s": 2.0}, r"speed_limit_m_s must be in \[0.001, 1.25\] m/s, got 2.0"),
+        ({"speed_limit_m_s": 0.0}, r"speed_limit_m_s must be in \[0.001, 1.25\] m/s, got 0.0"),
+        ({"speed_limit_m_s": float("nan")}, r"speed_limit_m_s"),
         (
             {"action_mode": "gains", "residual_limit_m": 2e-6},
             r"residual_limit_m 2e-06: only action_mode 'residual' has it",

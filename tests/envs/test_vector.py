@@ -168,6 +168,26 @@ def test_the_gain_scheduling_id_steps_exactly_as_a_sync_vector_env():
     assert (scaled != 1.0).any()  # then open
 
 
+def test_the_command_id_steps_exactly_as_a_sync_vector_env_at_its_speed_limit():
+    """The command id's speed action (+-1 for +-0.1 m/s, the hidden entries 0) through the vector env
+    is the single envs' through SyncVectorEnv, bit for bit, and the drive gets the action times
+    0.1 m/s one period late (the control delay), to float32's precision."""
+    env_id, n = "MicroGravityLanding-Command-v1", 3
+    ours = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point")
+    theirs = SyncVectorEnv([partial(gym.make, env_id) for _ in range(n)])
+    assert data_equivalence(ours.reset(seed=[4, 5, 6]), theirs.reset(seed=[4, 5, 6]), exact=True)
+    hidden = [OBSERVATION_INDEX[name] for name in gym.spec(env_id).kwargs["hidden_observations"]]
+    rng = np.random.default_rng(0)
+    sent = np.zeros(n)
+    for step in range(300):
+        actions = rng.uniform(-1, 1, size=(n, 1)).astype(np.float32)
+        mine = ours.step(actions)
+        assert data_equivalence(mine, theirs.step(actions), exact=True), f"step {step}"
+        assert not mine[0][:, hidden].any()
+        np.testing.assert_allclose(mine[4]["command_m_s"], sent, rtol=1e-7, atol=0)  # the drive's float32 action
+        sent = actions[:, 0].astype(np.float64) * 0.1
+
+
 @pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
 def test_steps_exactly_as_a_sync_vector_env_of_single_envs_through_autoresets(mode):
     """Gymnasium's vector contract, checked against its own SyncVectorEnv: spaces, seeding,

@@ -10,6 +10,7 @@ import time
 from dataclasses import fields, replace
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
@@ -18,7 +19,7 @@ import microg_env  # registers the environments
 from microg_env.analysis.metrics import RunMetrics
 from microg_env.analysis.summary import control_cost, selection_cost
 from microg_env.controllers import MLPPolicy, make_controller
-from microg_env.controllers.registry import deployed_controller
+from microg_env.controllers.registry import ACTING_KEYS, deployed_controller
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES
 from microg_env.learning import hyperparams as hp
@@ -345,6 +346,49 @@ def test_a_gains_policy_in_the_speed_env_is_the_gains_env_exactly(base, gate, hi
     np.testing.assert_array_equal(deployed.command_m_s[5::5], np.array(commands))
     zero = run_episode(MicroGravityLandingEnv(condition=3), make_controller(base, 1e-3), seed=4, duration_s=3.0)
     assert np.max(np.abs(np.array(xs) - zero.x_m[5::5])) > 1e-8  # the schedule moved x off the PID's
+
+
+class _Follower:
+    """A speed policy at 0.1 m/s an action that follows the lander: the support's measured speed
+    plus a P and a D term on x, and a wobble that depends on the observation."""
+
+    def predict(self, observation, deterministic=True):
+        o = np.atleast_2d(observation).astype(np.float64)
+        index = OBSERVATION_INDEX
+        action = o[:, index["support_velocity"]] + 0.05 * o[:, index["x"]] + 0.01 * o[:, index["x_rate"]]
+        action += 1e-3 * np.sin(1e4 * o[:, index["x"]])
+        return action.reshape(-1, 1).astype(np.float32), None
+
+
+def test_a_speed_policy_at_its_speed_limit_in_the_speed_env_is_the_command_env_exactly():
+    """A policy of the command id (an action of 1 for 0.1 m/s, its hidden entries read 0) deployed
+    in the default speed-action environment (whose action of 1 is 1.25 m/s) is the command
+    environment's, bit for bit: the controller returns the action times 0.1 / 1.25."""
+    acting = {
+        key: value for key, value in gym.spec("MicroGravityLanding-Command-v1").kwargs.items() if key in ACTING_KEYS
+    }
+    assert acting["speed_limit_m_s"] == 0.1
+    policy = _Follower()
+    env = MicroGravityLandingEnv(condition=3, **acting)
+    observation, info = env.reset(seed=4)
+    xs, commands, shown = [], [], []
+    for _ in range(3000):  # 3 s
+        action = policy.predict(observation)[0][0]
+        observation, _, terminated, _, info = env.step(action)
+        assert not terminated
+        shown.append((observation[OBSERVATION_INDEX["previous_action"]], action[0]))
+        xs.append(info["x_m"])
+        commands.append(info["command_m_s"])
+    np.testing.assert_array_equal(*zip(*shown, strict=True))
+    deployed = run_episode(
+        MicroGravityLandingEnv(condition=3), deployed_controller(policy, acting), seed=4, duration_s=3.0
+    )
+    np.testing.assert_array_equal(deployed.x_m[1:], np.array(xs))
+    np.testing.assert_array_equal(deployed.command_m_s[1:], np.array(commands))
+    assert 1e-7 < np.max(np.abs(xs)) < 1e-3  # it followed, not perfectly
+    actions = np.array([action for _, action in shown], dtype=np.float64)
+    np.testing.assert_allclose(commands[1:], actions[:-1] * 0.1, rtol=1e-6)  # m/s, a period late (the delay)
+    assert np.max(np.abs(commands)) > 1e-3  # the lander's descent
 
 
 def test_a_gains_policy_controller_refuses_a_base_that_is_not_a_pid_and_a_network_of_another_width():
@@ -929,6 +973,39 @@ def test_the_log_states_the_base_controllers_cost_as_the_line_to_beat(ppo_run):
     assert f"; {verdict} the base controller alone ({state['base_cost']:.4g})" in log.splitlines()[-1]
 
 
+@pytest.mark.slow
+def test_a_speed_policys_line_to_beat_is_the_papers_pid(tmp_path):
+    """A run of the command task (no base controller) logs the paper's PID's validation cost as its
+    line to beat; it named a base controller, a zero action, that a speed policy does not have."""
+    from microg_env.learning.train import VALIDATION_SEED, validation_settings
+    from microg_env.rollout.episode import evaluate
+
+    env_id = "MicroGravityLanding-Command-v1"
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())[env_id]
+    entry |= {"n_envs": 2, "n_steps": 64, "batch_size": 64, "n_epochs": 1}
+    conf = tmp_path / "ppo.yml"
+    conf.write_text(yaml.safe_dump({env_id: entry}))
+    folder = train(
+        TrainSettings(
+            env_id=env_id,
+            timesteps=128,
+            hyperparams=str(conf),
+            log_folder=str(tmp_path / "logs"),
+            eval_episodes=1,
+            command="pytest",
+        )
+    )
+    settings = validation_settings(gym.spec(env_id).kwargs)
+    runs, _ = evaluate(lambda: MicroGravityLandingEnv(**settings), make_controller("pid", 1e-3), [VALIDATION_SEED])
+    state = json.loads((folder / "checkpoints" / "latest.json").read_text())
+    assert state["base_cost"] == pytest.approx(selection_cost(runs), rel=1e-12)
+    log = (folder / "train.log").read_text()
+    assert f"the paper's PID: cost {state['base_cost']:.4g}, the line to beat" in log
+    assert "a zero action" not in log
+    # 128 steps leave the network's action at about 0: the support held still fails every evaluation
+    assert log.splitlines()[-1].endswith("best evaluation cost none (every evaluation failed)")
+
+
 def test_ctrl_c_before_the_first_checkpoint_leaves_no_run_folder(tmp_path, monkeypatch):
     """Ctrl-C while a new run is built (here: in its base controller's evaluation) used to escape
     as a traceback and leave a run folder that takes a run number and holds nothing to resume."""
@@ -1071,7 +1148,6 @@ THRESHOLDS = (
 
 @pytest.mark.parametrize("env_id", RESIDUAL_IDS)
 def test_the_residual_task_is_registered_with_its_defaults_and_passes_check_env(env_id):
-    import gymnasium as gym
     from gymnasium.utils.env_checker import check_env
 
     spec = gym.spec(env_id)
@@ -1097,7 +1173,6 @@ def test_a_zero_action_is_the_base_controller_on_every_version_of_the_residual_t
     sensor whatever the agent is shown, so every version's zero action is v1's on the same base
     controller, bit for bit (v4's, v5's and v6's agents see 0 in their hidden entries), and versions on
     the same base share the zero residual's return as their reward_threshold."""
-    import gymnasium as gym
 
     def run(env: gym.Env) -> tuple[np.ndarray, list[float]]:
         observations, rewards = [env.reset(seed=7)[0]], []
@@ -1130,7 +1205,6 @@ def test_validation_on_the_residual_task_drives_a_speed_environment(env_id):
     residual default coming back would have the controller's speed commands read as x setpoints,
     and a hidden entry would reach the base controller as 0 (the deployed controller hides what its
     policy is not shown itself)."""
-    import gymnasium as gym
 
     from microg_env.learning.train import validation_settings
 

@@ -1,8 +1,9 @@
-"""The residual and gain-scheduling ids' reward_threshold: the zero action's mean return over the id's own draws,
-seeds 1000-1099, rounded down (as ``training/returns_table.py`` measures it). The hundred returns
-are stored in ``zero_residual_returns.json``; ``python tests/learning/test_reward_threshold.py``
-measures them again (a minute) and rewrites it. A test re-runs three of them: the first seed's,
-the lowest and the highest."""
+"""The learning ids' reward_threshold: the mean return of the id's reference over its own draws, seeds
+1000-1099, rounded down (as ``training/returns_table.py`` measures it). The reference is the zero
+action (the base controller as tuned) on a residual or gain-scheduling id, the paper's PID on the
+command id. The hundred returns are stored in ``reference_returns.json``; ``python
+tests/learning/test_reward_threshold.py`` measures them again (a minute) and rewrites it. A test
+re-runs three of them: the first seed's, the lowest and the highest."""
 
 import json
 import math
@@ -14,32 +15,41 @@ import numpy as np
 import pytest
 
 import microg_env  # noqa: F401  (registers the environments)
+from microg_env.controllers.registry import make_controller
 from microg_env.envs.period import x_reward
+from microg_env.interface import MAX_SPEED_M_S
 from microg_env.task import TaskSettings
 
 #: The draws each threshold is the mean return over: seeds 1000-1099 (training/returns_table.py).
 FIRST_SEED, RIGS = 1000, 100
-#: Ids a zero residual runs the same for: one base and one draw, scored at each id's reward scale.
+#: Ids whose reference runs the same: one controller and one draw, scored at each id's reward scale.
 GROUPS = (
     ("MicroGravityLanding-Residual-v1",),
     ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v7"),
     ("MicroGravityLanding-GainScheduling-v1",),
+    ("MicroGravityLanding-Command-v1",),
 )
-RETURNS = Path(__file__).with_name("zero_residual_returns.json")
+RETURNS = Path(__file__).with_name("reference_returns.json")
 
 
-def _zero_residual_runs(env_id: str, seeds: list[int]) -> tuple[list[np.ndarray], float, int]:
-    """x at every control period of each seed's first episode under the zero residual, on a vector
+def _reference_runs(env_id: str, seeds: list[int]) -> tuple[list[np.ndarray], float, int]:
+    """x at every control period of each seed's first episode under the id's reference, on a vector
     env of one rig a seed (the single env of that seed, bit for bit) acting every period; the
-    guide's limit; the id's decision period. A zero residual is its base controller however often it
-    acts, so the trajectories are the id's own."""
-    period = gym.spec(env_id).kwargs["decision_period"]
+    guide's limit; the id's decision period. A zero residual or gains action is its base controller
+    however often it acts; the command id's PID runs at the drive's own action unit, every entry
+    shown (neither changes the draws or the physics): so the trajectories are the id's own."""
+    kwargs = gym.spec(env_id).kwargs
+    period = kwargs.get("decision_period", 1)
+    speed = kwargs.get("action_mode", "speed") == "speed"
+    acting = {"speed_limit_m_s": MAX_SPEED_M_S, "hidden_observations": ()} if speed else {"decision_period": 1}
     rigs = len(seeds)
-    vector = gym.make_vec(env_id, num_envs=rigs, vectorization_mode="vector_entry_point", decision_period=1)
-    vector.reset(seed=seeds)
+    vector = gym.make_vec(env_id, num_envs=rigs, vectorization_mode="vector_entry_point", **acting)
+    observation, _ = vector.reset(seed=seeds)
+    pid = make_controller("pid", vector.unwrapped.settings.control_period_s) if speed else None
     x, running = [[] for _ in range(rigs)], np.ones(rigs, dtype=bool)
     while running.any():  # an ended rig resets and steps on, uncounted
-        _, _, terminated, truncated, info = vector.step(np.zeros(vector.action_space.shape, dtype=np.float32))
+        action = pid(observation) if speed else np.zeros(vector.action_space.shape, dtype=np.float32)
+        observation, _, terminated, truncated, info = vector.step(action)
         for i in np.flatnonzero(running):
             x[i].append(info["x_m"][i])
         running &= ~(terminated | truncated)
@@ -56,8 +66,8 @@ def _return(x_m: np.ndarray, scale_m: float, limit_m: float, period: int) -> flo
 
 
 def _returns(group: tuple[str, ...], seeds: list[int]) -> dict[str, list[float]]:
-    """Each id's zero-residual return on each of ``seeds``, from one run of the group's first id."""
-    x, limit, period = _zero_residual_runs(group[0], seeds)
+    """Each id's reference's return on each of ``seeds``, from one run of the group's first id."""
+    x, limit, period = _reference_runs(group[0], seeds)
     out = {}
     for env_id in group:
         scale = gym.spec(env_id).kwargs.get("reward_scale_m", TaskSettings().reward_scale_m)
@@ -82,7 +92,7 @@ def test_each_group_runs_one_base_on_one_draw():
 
 
 @pytest.mark.parametrize("env_id", [env_id for group in GROUPS for env_id in group])
-def test_the_reward_threshold_is_the_stored_zero_residual_returns_mean_rounded_down(env_id):
+def test_the_reward_threshold_is_the_stored_reference_returns_mean_rounded_down(env_id):
     returns = _stored()[env_id]
     assert len(returns) == RIGS
     assert gym.spec(env_id).reward_threshold == math.floor(np.mean(returns)), np.mean(returns)
