@@ -273,6 +273,16 @@ def speed_actions(actions: np.ndarray, limit_m_s: float) -> np.ndarray:
     return np.asarray(actions * (limit_m_s / MAX_SPEED_M_S), dtype=np.float32)
 
 
+def speed_commands_m_s(actions: np.ndarray, limit_m_s: float) -> np.ndarray:
+    """The drive's speed commands (m/s, float64) that speed actions stand for at ``speed_limit_m_s``
+    ``limit_m_s``: at the default limit the action times :data:`MAX_SPEED_M_S`; below it
+    :func:`speed_actions` (what a controller returns) times :data:`MAX_SPEED_M_S`."""
+    actions = np.asarray(actions, dtype=np.float64)
+    if limit_m_s == MAX_SPEED_M_S:
+        return actions * MAX_SPEED_M_S
+    return speed_actions(actions, limit_m_s).astype(np.float64) * MAX_SPEED_M_S
+
+
 def gain_scales(actions: np.ndarray, limit: float) -> np.ndarray:
     """The gain multipliers that ``gains`` actions (n, 3) in [-1, 1] stand for: ``limit ** action``,
     so an action of 0 is exactly the base PID (a multiplier of exactly 1)."""

@@ -1,7 +1,7 @@
 """The returns table of the learning tasks (MicroGravityLanding-Command-v1, -GainScheduling-v1, -Residual-v7 to
 -v1): what each controller earns.
 
-Every controller runs in the residual environment with the id's defaults (a residual x setpoint on
+Every controller runs in the id's environment with its defaults (on a residual id a residual x setpoint on
 `adaptive`, held 5 control periods: +-1 um in v1, +-3 um high-passed at 2 Hz in v2, twice in v3,
 the absolute positions hidden from the agent in v4; v5 on `adaptive-dither`, gated to the contact,
 the agent reading the paper's sensors; v6 gated on the high-passed setpoint; v7 scored at x0 =
@@ -44,14 +44,26 @@ from microg_env.experiments.comparison import TEST_SEED
 from microg_env.interface import GAIN_BASES, MAX_SPEED_M_S, action_size
 from microg_env.learning.train import ENV_IDS as TRAINED_IDS
 from microg_env.scenarios import comparison_scenarios
-from microg_env.task import TaskSettings
+from microg_env.task import ActingSettings, TaskSettings
+
+
+def action_mode(env_id: str) -> str:
+    """What ``env_id``'s action is (a command id registers the default: the speed)."""
+    return ActingSettings.of(gym.spec(env_id).kwargs).action_mode
+
+
+def is_command_id(env_id: str) -> bool:
+    """Whether ``env_id`` is a learning task whose action is the drive's speed command (no base
+    controller): a speed id with draws of its own (``MicroGravityLanding-v1`` has none)."""
+    return action_mode(env_id) == "speed" and bool(gym.spec(env_id).kwargs)
+
 
 #: The learning tasks' ids (those ``microg train`` trains on): the residual ones, the newest first (the
-#: default), then the gain-scheduling one and the command one (a speed id with draws of its own).
+#: default), then the gain-scheduling one and the command one.
 ENV_IDS = (
-    *reversed([env_id for env_id in TRAINED_IDS if gym.spec(env_id).kwargs.get("action_mode") == "residual"]),
-    *[env_id for env_id in TRAINED_IDS if gym.spec(env_id).kwargs.get("action_mode") == "gains"],
-    *[env_id for env_id in TRAINED_IDS if "action_mode" not in gym.spec(env_id).kwargs and gym.spec(env_id).kwargs],
+    *reversed([env_id for env_id in TRAINED_IDS if action_mode(env_id) == "residual"]),
+    *[env_id for env_id in TRAINED_IDS if action_mode(env_id) == "gains"],
+    *[env_id for env_id in TRAINED_IDS if is_command_id(env_id)],
 )
 #: A command id's classical rows run at the drive's own action unit, every entry shown.
 DRIVE_ACTING = {"speed_limit_m_s": MAX_SPEED_M_S, "hidden_observations": ()}
@@ -69,11 +81,6 @@ def episode_return(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], seed: 
         total += float(reward)
         done = terminated or truncated
     return total
-
-
-def is_command_id(env_id: str) -> bool:
-    """Whether ``env_id``'s action is the drive's speed command (no base controller)."""
-    return gym.spec(env_id).kwargs.get("action_mode", "speed") == "speed"
 
 
 def base_rows(env_id: str) -> dict[str, str]:

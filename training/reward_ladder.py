@@ -34,6 +34,8 @@ from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
+from returns_table import ENV_IDS as LEARNING_IDS
+from returns_table import action_mode
 
 import microg_env  # noqa: F401  (registers the ids)
 from microg_env.analysis.metrics import contacts
@@ -143,11 +145,6 @@ def speed_settings(env_id: str) -> dict:
 def speed_env(env_id: str) -> MicroGravityLandingEnv:
     """The id's draws in the speed-action environment (:func:`speed_settings`)."""
     return MicroGravityLandingEnv(**speed_settings(env_id))
-
-
-def action_mode(env_id: str) -> str:
-    """What ``env_id``'s action is (a command id registers the default, the speed)."""
-    return gym.spec(env_id).kwargs.get("action_mode", "speed")
 
 
 def controllers(env_id: str, policy: str | None, seed: int) -> dict[str, object]:
@@ -274,11 +271,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scales", default="1e-8,1e-7,1e-6", help="reward scales x0 to score, m")
     parser.add_argument("--json", help="also write the result here")
     args = parser.parse_args(argv)
-    if args.env not in gym.registry:
-        parser.error(f"--env: {args.env!r} is not a registered id")
+    if args.env not in LEARNING_IDS:
+        parser.error(f"--env must be one of {', '.join(LEARNING_IDS)}, got {args.env!r}")
     mode = action_mode(args.env)
-    if mode == "speed" and not gym.spec(args.env).kwargs:
-        parser.error(f"--env: {args.env} draws no training schedules; name a residual, gains or command id")
     if args.policy is None and mode == "residual":
         args.policy = "residual-sac-setpoint"
     scales = [float(s) for s in args.scales.split(",")]

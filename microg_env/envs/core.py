@@ -39,7 +39,7 @@ from microg_env.interface import (
     gated_actions,
     gated_setpoint,
     highpass_gain,
-    speed_actions,
+    speed_commands_m_s,
 )
 from microg_env.params import MAX_CONTROL_STEPS, RigParams
 from microg_env.scenarios import SETTLE_S, LoadStep, Scenario, ideal_descent_m_s2
@@ -423,19 +423,19 @@ class LandingCore:
                 self._residual_gain,
                 (self.residual_action, self.residual_setpoint_m, self.residual_stage_m),
             )
-        # a speed action below the default limit: the drive's action (over MAX_SPEED_M_S, float32), sent as the
-        # command it gives, so that a policy's controller, which returns that action, commands the same speed
-        drive_actions = None
+        # a speed action below the default limit: sent as the command its drive action (over MAX_SPEED_M_S,
+        # float32) gives, so that a policy's controller, which returns that action, commands the same speed
+        speeds_m_s = None
         if self.settings.action_mode == "speed" and self.settings.speed_limit_m_s != MAX_SPEED_M_S:
-            drive_actions = speed_actions(actions, self.settings.speed_limit_m_s)
+            speeds_m_s = speed_commands_m_s(actions, self.settings.speed_limit_m_s)
         n = ids.size
         total, periods = np.zeros(n), np.zeros(n, dtype=np.int64)
         codes, truncated = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool)
         positions, rigs = self._positions[:n], ids  # the rigs still running and their places in ids
         for _ in range(self.settings.decision_period):
             command = self._no_commands  # the drive takes the actions themselves
-            if drive_actions is not None:
-                command = drive_actions[positions].astype(np.float64) * MAX_SPEED_M_S
+            if speeds_m_s is not None:
+                command = speeds_m_s[positions]
             if self.base is not None:
                 command = self.base(self.observation[rigs], ids=rigs)[:, 0].astype(np.float64) * MAX_SPEED_M_S
                 self.base_command[rigs] = command

@@ -62,7 +62,7 @@ from microg_env.learning.settings import (
 )
 from microg_env.params import CONTROL_PERIOD_S, RigParams
 from microg_env.rigs import read_rig_option
-from microg_env.task import ACTING_KEYS, TaskSettings
+from microg_env.task import ACTING_KEYS, ActingSettings, TaskSettings
 from microg_env.validate import fault, shown
 
 #: First seed of the validation episodes that choose the best model (training envs are seeded
@@ -669,7 +669,7 @@ class _Run:
 
     def _speed_policy(self) -> bool:
         """Whether the run's policy commands the drive's speed itself (no base controller)."""
-        return self.params.env_kwargs.get("action_mode", "speed") == "speed"
+        return ActingSettings.of(self.params.env_kwargs).action_mode == "speed"
 
     def _line_to_beat(self) -> tuple[str, str]:
         """The controller a run's policy is to beat, and what the log calls it."""

@@ -26,7 +26,7 @@ from gymnasium.utils import seeding
 from microg_env import validate
 from microg_env.envs.core import LandingCore
 from microg_env.envs.landing import MicroGravityLandingEnv
-from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, SCALES, SENSOR_SETS
+from microg_env.interface import MAX_SPEED_M_S, OBSERVATION_INDEX, SCALES, SENSOR_SETS, speed_commands_m_s
 from microg_env.logs import DEFAULT_WINDOW_S, OPTIONAL_COLUMNS, RigLog
 from microg_env.params import PHYSICS_STEP_S, RigParams, with_overrides
 from microg_env.task import TaskSettings
@@ -65,7 +65,8 @@ class LogRecorder:
         core = env.unwrapped.core
         self._sensor_set = str(info["sensor_set"])
         if self._readings:  # the step's action: the speed reference sent
-            self._commands.append(float(core.previous_action[0]) * MAX_SPEED_M_S)
+            limit = env.unwrapped.settings.speed_limit_m_s
+            self._commands.append(float(speed_commands_m_s(core.previous_action[:1], limit)[0]))
         # Ruler, encoder and accelerometer at full precision (the observation's float32 is 6 nm of the
         # encoder); the pad force as the observation holds it (float32: 6 uN of 100 N).
         force = float(core.observation[0, self._force]) * SCALES[self._force]

@@ -69,7 +69,8 @@ def test_stable_baselines3_check_env():
     ("env_id", "width"), [("MicroGravityLanding-GainScheduling-v1", 3), ("MicroGravityLanding-Command-v1", 1)]
 )
 def test_the_gain_scheduling_and_command_ids_pass_both_checkers(env_id, width):
-    """The gains id's three-number action included; SB3's checker warns of nothing either."""
+    """Gymnasium's checker passes the gains id (its three-number action included) and the command id
+    (its speed limit); SB3's checker warns of nothing either."""
     sb3_checker = pytest.importorskip("stable_baselines3.common.env_checker")
     env = gym.make(env_id).unwrapped
     assert env.action_space.shape == (width,)

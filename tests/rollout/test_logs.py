@@ -166,6 +166,19 @@ def test_a_log_starts_where_its_episode_did():
     assert replay(log).rms()["encoder_m"] < 1.2 * reading_noise(RigParams())["encoder_m"]
 
 
+def test_a_log_records_the_speed_sent_at_the_environments_speed_limit():
+    """On the command id an action of 1 is 0.1 m/s: the log read every action as 1.25 m/s."""
+    recorder = LogRecorder()
+    env = gym.make("MicroGravityLanding-Command-v1")
+    _, info = env.reset(seed=1)
+    recorder(env, info)
+    actions = np.array([0.3, -0.2, 0.05], dtype=np.float32)
+    for action in actions:
+        _, _, _, _, info = env.step(action.reshape(1))
+        recorder(env, info)
+    np.testing.assert_allclose(recorder.log().columns["command_m_s"], actions * 0.1, rtol=1e-6)
+
+
 def test_a_replay_window_starts_its_shifted_copies_from_the_replays_own_drive_state():
     """At each window the replay's two shifted copies take the first rig's state, the midpoint
     drive's last motor speed included: rigs driven apart and then copied step on bit for bit alike
