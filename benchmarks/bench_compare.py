@@ -48,7 +48,7 @@ def physics_floor(controllers: int, seeds: int, scenarios: list[str], duration_s
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--controllers", default="pid,feedforward,residual-ppo")
+    parser.add_argument("--controllers", default="pid,feedforward,residual-sac-setpoint")
     parser.add_argument("--scenarios", default="condition-1,condition-2,condition-3")
     parser.add_argument("--seeds", type=int, default=16)
     parser.add_argument("--duration", type=float, default=None, help="cap on each episode (default: the scenario's)")

@@ -11,7 +11,7 @@ baseline decides every period), and, for a policy, those of onnxruntime's infere
 export (:mod:`microg_env.learning.onnx_export`) on each of the episode's observations, one at a
 time, on one thread. Prints a Markdown table, and the machine it ran on.
 
-Usage: ``python benchmarks/bench_controller_compute.py [--controllers pid,residual-ppo] [--condition N]
+Usage: ``python benchmarks/bench_controller_compute.py [--controllers pid,residual-sac-setpoint] [--condition N]
 [--duration S] [--seed N] [--repeats N]``.
 """
 

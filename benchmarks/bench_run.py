@@ -12,7 +12,7 @@ The ratio bare/episode is the environment's throughput as a share of that floor 
 Both run MuJoCo's own drive stepping (``drive_scheme="mujoco"``): the bare loop can replay its
 inputs once a period, which the midpoint drive's per-step speed input cannot be
 (``benchmarks/bench_drive_scheme.py`` times the midpoint drive against it).
-The residual policy is ``residual-ppo`` (acting every 5 periods on ``feedforward``).
+The residual policy is ``residual-sac-setpoint`` (acting every 5 periods on ``adaptive-dither``, gated to the contact).
 
 Usage: ``python benchmarks/bench_run.py [--repeats N] [--condition N] [--controllers pid,feedforward] [--duration S]``.
 """
@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--condition", type=int, default=1)
-    parser.add_argument("--controllers", default="pid,feedforward,residual-ppo")
+    parser.add_argument("--controllers", default="pid,feedforward,residual-sac-setpoint")
     parser.add_argument("--duration", type=float, default=None, help="cap on the episode, s (default: the condition's)")
     args = parser.parse_args(argv)
     print(f"condition {args.condition}, medians of {args.repeats} interleaved rounds")

@@ -16,7 +16,7 @@ environment's default (``"midpoint"``) unless given: ``mujoco`` runs MuJoCo's ow
 drive (docs/model.md, "Drive scheme").
 
 Usage: ``python benchmarks/convergence.py [--steps-us 200 100 50 25] [--duration S]
-[--controllers pid,feedforward,residual-ppo] [--integrator rk4] [--overrides JSON] [--off cogging]
+[--controllers pid,feedforward,residual-sac-setpoint] [--integrator rk4] [--overrides JSON] [--off cogging]
 [--drive-scheme mujoco]``.
 Prints one table per controller and condition (and the excursions' values at each step) and, last,
 the steps that converge on all three conditions, per controller.
@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps-us", type=float, nargs="+", default=[200.0, 100.0, 50.0, 25.0])
     parser.add_argument("--duration", type=float, default=None, help="simulated time per run (default: 30 s)")
-    parser.add_argument("--controllers", default="pid,feedforward,residual-ppo")
+    parser.add_argument("--controllers", default="pid,feedforward,residual-sac-setpoint")
     parser.add_argument("--integrator", choices=tuple(INTEGRATORS), default=None, help="default: the scheme's")
     parser.add_argument("--drive-scheme", choices=DRIVE_SCHEMES, default=DEFAULT_DRIVE_SCHEME)
     parser.add_argument(

@@ -6,10 +6,12 @@ The names below are imported when first used (``from microg_env import RigParams
 importing the package stays light: a command starts its worker processes before the rest imports.
 """
 
+import functools
 import importlib
 from typing import TYPE_CHECKING
 
 from gymnasium.envs.registration import register, registry
+from gymnasium.error import DeprecatedEnv
 
 from microg_env.interface import RESIDUAL_HIGHPASS_HZ, SENSOR_SETS
 from microg_env.params import MAX_CONTROL_STEPS
@@ -52,14 +54,10 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/cli/test_cli.py che
     from microg_env.sim.model import build_pad_test as build_pad_test
     from microg_env.sim.model import build_rig as build_rig
 
-#: MicroGravityLanding-Residual-v1's reward_threshold: the mean return of its zero residual (the
-#: adaptive feed-forward alone) over 100 of its own draws, seeds 1000-1099 (678.4 ± 11.1 standard
-#: error; ``python training/returns_table.py --seeds 100 --scenarios training``; 679 from 0.19.0 to
-#: 0.21.0, before the midpoint drive; 678 before 0.19.0 drew each plant from a stream of its own).
-REWARD_THRESHOLD = 678.0
-#: MicroGravityLanding-Residual-v5's: its zero residual's (`adaptive-dither` alone), the same way
-#: (674.8 +- 11.0 standard error; ``python training/returns_table.py --env
-#: MicroGravityLanding-Residual-v5 --seeds 100 --scenarios training``; 676 from 0.19.0 to 0.21.0).
+#: MicroGravityLanding-Residual-v6's reward_threshold: the mean return of its zero residual
+#: (`adaptive-dither` alone) over 100 of its own draws, seeds 1000-1099 (674.8 +- 11.0 standard error;
+#: ``python training/returns_table.py --env MicroGravityLanding-Residual-v6 --seeds 100 --scenarios
+#: training``; 676 from 0.19.0 to 0.21.0).
 GATED_REWARD_THRESHOLD = 674.0
 #: MicroGravityLanding-Residual-v7's: its zero residual's (`adaptive-dither` alone, x0 = 1 um), the
 #: same way (768.99 +- 11.1 standard error; ``python training/returns_table.py --env
@@ -97,88 +95,49 @@ def _register(env_id: str, kwargs: dict | None = None, reward_threshold: float |
         )
 
 
+def _retired(env_id: str, release: str, successor: str, **_kwargs) -> None:
+    """Refuse a retired id (Gymnasium's DeprecatedEnv), naming the last release that had it."""
+    raise DeprecatedEnv(
+        f"{env_id} is retired: microg-env {release} has it (pip install 'microg-env=={release}'); "
+        f"its successor is {successor}"
+    )
+
+
+def _retire(env_id: str, release: str, successor: str) -> None:
+    """Register ``env_id`` as retired: ``gym.make`` and ``gym.make_vec`` raise with a pointer to ``release``."""
+    if env_id not in registry:
+        refuse = functools.partial(_retired, env_id, release, successor)
+        register(id=env_id, entry_point=refuse, vector_entry_point=refuse)
+
+
 _register("MicroGravityLanding-v1")
-# The learning task: a +-1 um residual x setpoint on the best deployable classical controller in x (the
-# adaptive feed-forward), held 5 control periods, on drawn training schedules and drawn plants and
-# drives, so a zero action is the line to beat. reward_threshold: that zero residual's mean return
-# on these draws (training/returns_table.py).
-_register(
-    "MicroGravityLanding-Residual-v1",
-    {
-        "action_mode": "residual",
-        "base_controller": "adaptive",
-        "decision_period": 5,
-        "residual_limit_m": 1e-6,
-        "scenario_sampler": "training",
-        "domain_randomization": "full",
-    },
-    REWARD_THRESHOLD,
-)
-# v1's task with the residual high-passed at RESIDUAL_HIGHPASS_HZ (interface.residual_setpoint): the
-# residual shapes transients and cannot move the steady x its base holds, so it cannot trade the
-# compensation error for x; with that, it can be given the authority to cancel the excursions its
-# base leaves: +-3 um (adaptive leaves 2.2 um at the collision on average on the held-out plants,
-# which a +-1 um setpoint cannot undo). A zero action is still exactly the base controller: the
-# same reward_threshold.
-_register(
-    "MicroGravityLanding-Residual-v2",
-    {
-        **registry["MicroGravityLanding-Residual-v1"].kwargs,
-        "residual_limit_m": 3e-6,
-        "residual_highpass_hz": RESIDUAL_HIGHPASS_HZ,
-    },
-    REWARD_THRESHOLD,
-)
-# v2's task with a second-order high-pass (interface.RESIDUAL_HIGHPASS_ORDERS): through v2's one
-# stage, an action drifting at a steady rate (as the observations drift through a free fall) held
-# x a few nm off the base's steady state, a compensation error 3.6 times feedforward's on the
-# nominal plant; through two stages it decays. A zero action is still exactly the base controller:
-# the same reward_threshold.
-_register(
-    "MicroGravityLanding-Residual-v3",
-    {**registry["MicroGravityLanding-Residual-v2"].kwargs, "residual_highpass_order": 2},
-    REWARD_THRESHOLD,
-)
-# v3's task with the agent not shown the absolute positions (the encoder's support position and
-# the foot's height; the base controller still reads them): they depend on the schedule's start
-# height (3-30 mm in training, 55-120 mm in the held-out schedules), so a policy that reads them
-# meets values outside every one it was trained on as soon as it is started higher. A zero action
-# is still exactly the base controller: the same reward_threshold.
-_register(
-    "MicroGravityLanding-Residual-v4",
-    {**registry["MicroGravityLanding-Residual-v3"].kwargs, "hidden_observations": ("support_position", "height")},
-    REWARD_THRESHOLD,
-)
-# v4's task gated to the contact (interface.gated_actions): the residual acts from the moment the
-# foot reads at or below the pad's surface (encoder + ruler), on the best deployable classical
-# controller (`adaptive-dither`), which alone flies every free fall, and the agent reads only the
-# paper's rig's sensors (SENSOR_SETS["paper"] hidden from it, whatever the rig has; the base reads
-# all the rig has), so one policy runs alike on both sensor sets. It is shown the foot's height,
-# which opens its gate; its action counts only near the pad, where training's heights and the
-# held-out ones agree. The paper's Conclusions propose learning "to adjust control during the
-# collision"; why the free fall is left to the base: docs/controllers.md. A zero action is
-# exactly `adaptive-dither`: reward_threshold is its return.
-_register(
-    "MicroGravityLanding-Residual-v5",
-    {
-        **registry["MicroGravityLanding-Residual-v4"].kwargs,
-        "base_controller": "adaptive-dither",
-        "residual_gate_m": 0.0,
-        "hidden_observations": ("support_position", *SENSOR_SETS["paper"]),
-    },
-    GATED_REWARD_THRESHOLD,
-)
-# v5's task with the gate on the high-passed setpoint (interface.gated_setpoint): the action goes
-# through the high-pass throughout and the gate passes the filtered setpoint, so an action the agent
-# holds before the contact has decayed when the gate opens instead of entering the contact as a
-# step (0.89 a x 3 um for an action a through v5's gate). Trained so (the recipe of
-# `residual-sac-setpoint`), SAC no longer failed on the paper's rig (one seed) and four of five
-# seeds came within 6 % of the dither on the nominal plant, where every v5 seed lost 19-72 %
-# (docs/research-log.md, "The gate's step"). A zero action is still exactly `adaptive-dither`: v5's
-# reward_threshold.
+for _version in range(1, 6):
+    _retire(f"MicroGravityLanding-Residual-v{_version}", "0.25.0", "MicroGravityLanding-Residual-v7")
+# The residual task: a high-passed x setpoint within +-3 um (interface.residual_setpoint, two stages at
+# RESIDUAL_HIGHPASS_HZ, so the residual shapes transients and cannot move the steady x its base holds) on
+# the best deployable classical controller (`adaptive-dither`), held 5 control periods, gated to the
+# contact: the gate passes the filtered setpoint from the moment the foot reads at or below the pad's
+# surface (interface.gated_setpoint), so an action held before the contact has decayed when the gate
+# opens. Training schedules and plants and drives are drawn at every reset. The agent reads the paper's
+# rig's sensors (SENSOR_SETS["paper"] hidden from it, whatever the rig has; the base reads all the rig
+# has) but the support's absolute position, so one policy runs alike on both sensor sets. The shipped
+# `residual-sac-setpoint` was trained on it. Its lineage, v1-v5 (retired in 0.26.0): docs/research-log.md.
+# A zero action is exactly `adaptive-dither`: reward_threshold is its return.
 _register(
     "MicroGravityLanding-Residual-v6",
-    {**registry["MicroGravityLanding-Residual-v5"].kwargs, "residual_gate_on": "setpoint"},
+    {
+        "action_mode": "residual",
+        "base_controller": "adaptive-dither",
+        "decision_period": 5,
+        "residual_limit_m": 3e-6,
+        "scenario_sampler": "training",
+        "domain_randomization": "full",
+        "residual_highpass_hz": RESIDUAL_HIGHPASS_HZ,
+        "residual_highpass_order": 2,
+        "hidden_observations": ("support_position", *SENSOR_SETS["paper"]),
+        "residual_gate_m": 0.0,
+        "residual_gate_on": "setpoint",
+    },
     GATED_REWARD_THRESHOLD,
 )
 # v6's task with its return scored where its metric is: x0 = 1 um, not 10 nm. At 10 nm the ~1400

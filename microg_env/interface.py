@@ -120,7 +120,7 @@ DESCENT_SCALE_M_S, DESCENT_LIMIT_M_S = 1e-7, 1e-2
 #: The x setpoint that the action +-1 stands for in the residual action mode, m (the default of
 #: the environment's ``residual_limit_m``).
 RESIDUAL_LIMIT_M = 1e-6
-#: The corner of the residual's high-pass in ``MicroGravityLanding-Residual-v2`` and -v3, Hz. Its time
+#: The corner of the residual's high-pass in ``MicroGravityLanding-Residual-v6`` and -v7, Hz. Its time
 #: constant, 1/(2 pi 2 Hz) = 80 ms, lets a held residual decay by e^-2.5 within the 0.2 s that
 #: the descent fit waits after a weight is placed (scenarios.SETTLE_S), so the residual
 #: shapes transients while the base controller keeps the steady state; it is the corner

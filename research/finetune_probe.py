@@ -5,10 +5,11 @@ rigs), then the validation cost of ``microg train`` (``analysis.summary.selectio
 validation schedules, seeds from 500) on each rig for the base controller alone, the shipped
 policy and the fine-tuned one. The replay buffer starts empty (the shipped folder keeps none) and
 the entropy coefficient where training left it. A probe, not a recipe: docs/research-log.md
-("Training on both rigs") reports seeds 0 and 1 with ``--set sensor_set=mixed`` and without
-(both undo the shipped policy: without its replay buffer, fine-tuning is no test of the rig).
+("Training on both rigs") reports seeds 0 and 1 on ``residual-sac-gated`` (retired in 0.26.0:
+microg-env 0.25.0 has it) with ``--set sensor_set=mixed`` and without (both undo the shipped
+policy: without its replay buffer, fine-tuning is no test of the rig).
 
-Run: ``python research/finetune_probe.py [--policy residual-sac-gated] [--set KEY=VALUE]
+Run: ``python research/finetune_probe.py [--policy residual-sac-setpoint] [--set KEY=VALUE]
 [--timesteps 20000] [--seed 0] [--episodes 40]``.
 """
 
@@ -56,7 +57,7 @@ def costs(env_kwargs: dict, controller, episodes: int) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--policy", default="residual-sac-gated", help="a shipped SAC policy")
+    parser.add_argument("--policy", default="residual-sac-setpoint", help="a shipped SAC policy")
     parser.add_argument("--set", action="append", default=[], help="an env keyword change, KEY=VALUE; repeat")
     parser.add_argument("--timesteps", type=int, default=20000, help="steps of fine-tuning (default 20000)")
     parser.add_argument("--seed", type=int, default=0)

@@ -6,11 +6,11 @@ leaves some of them a large excursion and others a small one; a residual that ca
 apart adds the same correction to both. Binning the paired episodes of a ``microg compare`` result
 by the reference's own excursion shows it: the ratio (controller / reference, of the bin's means)
 and the share of episodes the controller wins, per bin. docs/research-log.md's "The nominal plant"
-runs the default arguments on ``docs/comparison-held-out-extended`` and ``-paper``, and
-``--edges 0.25,0.5,1`` on ``docs/comparison``. Episodes either controller left without a value
+ran it with ``--controller residual-sac-gated`` (retired in 0.26.0) on the held-out comparisons of
+the time, and ``--edges 0.25,0.5,1`` on ``docs/comparison``. Episodes either controller left without a value
 (a run that ended early) are counted and left out.
 
-Run: ``python research/gain_by_base_error.py RESULT/comparison.json [--controller residual-sac-gated]
+Run: ``python research/gain_by_base_error.py RESULT/comparison.json [--controller residual-sac-setpoint]
 [--reference adaptive-dither] [--quantity collision_excursion_m] [--edges 0.5,1,2,4]``.
 """
 
@@ -74,7 +74,7 @@ def binned(pairs: np.ndarray, edges: list[float]) -> list[tuple[float, float, in
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("result", type=Path, help="a comparison.json written by microg compare")
-    parser.add_argument("--controller", default="residual-sac-gated")
+    parser.add_argument("--controller", default="residual-sac-setpoint")
     parser.add_argument("--reference", default="adaptive-dither")
     parser.add_argument("--quantity", default="collision_excursion_m")
     parser.add_argument("--edges", default="0.5,1,2,4", help="bin edges in the quantity's display unit")

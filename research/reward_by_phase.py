@@ -1,12 +1,13 @@
 """What the reward pays a learned residual for, phase by phase: its return minus the zero
 residual's on the same seeds, before the first contact, during it and after it, beside what it
-does to the first contact's peak x, and the action it holds when v5's gate opens (what enters the
+does to the first contact's peak x, and the action it holds when the gate opens (what enters the
 high-pass as a step with ``residual_gate_on="action"``): means over the seeds ± their standard error.
 
 The reward scores x in decades every control period (docs/environment.md, "Rewards"), so a
 residual that lowers the collision's peak but raises x where x is small can earn nothing for it.
-docs/research-log.md's "Training on both rigs" runs the default arguments with ``--seeds 100``:
-the shipped ``residual-sac-gated`` on its task's own draws (seeds from 1000), on each sensor set.
+docs/research-log.md's "Training on both rigs" ran it with ``--seeds 100`` on v5 and
+``residual-sac-gated`` (both retired in 0.26.0: microg-env 0.25.0 has them); the defaults run the
+shipped ``residual-sac-setpoint`` on v6's own draws (seeds from 1000), on each sensor set.
 ``--reward-scale-m`` scores x from another x0 than the id's (10 nm). Phases and the peak are
 read at each step's last control period (every ``decision_period``-th): the first contact from the
 first step with the foot below the pad's surface to the first step after it with no pad force
@@ -14,8 +15,8 @@ first step with the foot below the pad's surface to the first step after it with
 bound of the comparison's "x at the collision", and a step that crosses a boundary counts whole
 to the later phase.
 
-Run: ``python research/reward_by_phase.py [--env MicroGravityLanding-Residual-v5]
-[--policy residual-sac-gated] [--seeds 40] [--reward-scale-m 1e-8]``.
+Run: ``python research/reward_by_phase.py [--env MicroGravityLanding-Residual-v6]
+[--policy residual-sac-setpoint] [--seeds 40] [--reward-scale-m 1e-8]``.
 """
 
 from __future__ import annotations
@@ -86,8 +87,8 @@ def phase_returns(env: gym.Env, act, seed: int | None) -> tuple[np.ndarray, floa
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", choices=ENV_IDS, default="MicroGravityLanding-Residual-v5")
-    parser.add_argument("--policy", default="residual-sac-gated", help="a shipped policy or a policy folder")
+    parser.add_argument("--env", choices=ENV_IDS, default="MicroGravityLanding-Residual-v6")
+    parser.add_argument("--policy", default="residual-sac-setpoint", help="a shipped policy or a policy folder")
     parser.add_argument("--seeds", type=int, default=40, help="episodes per sensor set, seeds from 1000 (default 40)")
     parser.add_argument("--reward-scale-m", type=float, help="x0 of the reward, m (default the id's)")
     args = parser.parse_args(argv)

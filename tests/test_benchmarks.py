@@ -17,7 +17,7 @@ SMOKE_ARGS = {
     "bench_kernel_args": ["--calls", "100", "--repeats", "1"],
     "bench_compare": ["--seeds", "1", "--scenarios", "condition-1", "--duration", "0.5", "--timesteps", "512"],
     "bench_reproduce": ["--repeats", "1", "--duration", "0.5"],
-    "convergence": ["--steps-us", "100", "25", "--duration", "0.2", "--controllers", "pid,residual-ppo"],
+    "convergence": ["--steps-us", "100", "25", "--duration", "0.2", "--controllers", "pid,residual-sac-setpoint"],
     "bench_drive_scheme": ["--sizes", "2", "--seconds", "0.05", "--repeats", "1"],
     "convergence_comparison": [
         "--controllers",
@@ -35,7 +35,7 @@ SMOKE_ARGS = {
         "--workers",
         "1",
     ],
-    "bench_controller_compute": ["--controllers", "pid,residual-ppo", "--duration", "0.05", "--repeats", "1"],
+    "bench_controller_compute": ["--controllers", "pid,residual-sac-setpoint", "--duration", "0.05", "--repeats", "1"],
     "identifiability": ["--draws", "1", "--workers", "1", "--seconds", "0.3", "0.4", "--max-iterations", "1"],
 }
 

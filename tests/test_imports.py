@@ -148,7 +148,7 @@ def test_the_product_never_imports_the_research_probes():
     """The package, the user's tools in training/, the benchmarks and the default suite import no
     module of research/ (the probes are the research record, not the product)."""
     probes = {path.stem for path in RESEARCH.glob("*.py")} - {"conftest"} | {"research"}
-    assert {"partial_oracles", "recipe_probe", "sac_probes"} <= probes
+    assert {"partial_oracles", "finetune_probe", "plain_sb3"} <= probes
     product = [*PACKAGE.rglob("*.py"), *(PACKAGE.parent / "training").glob("*.py")]
     product += [*(PACKAGE.parent / "benchmarks").glob("*.py"), *(PACKAGE.parent / "tests").rglob("*.py")]
     offenders = {str(path): sorted(_top_level_imports(path) & probes) for path in product}

@@ -104,7 +104,7 @@ def test_installed_wheel_builds_drops_and_runs_the_shipped_policy_from_another_f
     drop = json.loads(output("microg", "drop", "--json"))
     assert abs(drop["contact_time_s"]["rel_error"]) < 0.01
     # The shipped policy (numpy only, with its normalisation) and the packaged hyperparameters.
-    run = json.loads(output("microg", "run", "--controller", "residual-ppo", "--duration", "3", "--json"))
+    run = json.loads(output("microg", "run", "--controller", "residual-sac-setpoint", "--duration", "3", "--json"))
     assert run["termination_reason"] is None
     assert run["flexible_unit_excursion_free_fall_m"] < 1e-6  # the PID's is about 3 um
     hyperparams = (

@@ -30,8 +30,8 @@ def test_training_script_runs(name, args, expected, monkeypatch, capsys):
 
 @pytest.mark.slow
 def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(monkeypatch, tmp_path, capsys):
-    """The seed selection of docs/research-log.md (there on 200 episodes), on the shipped v3 policy and 4: the
-    selection cost (mean excursion), the paired ratio to the zero residual, the worst excursion
+    """The seed selection of docs/research-log.md (there on 200 episodes), on the shipped residual policy and 4:
+    the selection cost (mean excursion), the paired ratio to the zero residual, the worst excursion
     beside it; runs of two tasks, and counts of episodes that would reach no seed or a test seed, are refused."""
     import shutil
 
@@ -39,14 +39,14 @@ def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(mo
 
     monkeypatch.syspath_prepend(str(TRAINING))
     select_seed = importlib.import_module("select_seed")
-    runs = [tmp_path / "v3", tmp_path / "v1"]
-    for run, name in zip(runs, ("residual-ppo-adaptive", "residual-ppo"), strict=True):
+    runs = [tmp_path / "v6", tmp_path / "gains"]
+    for run, name in zip(runs, ("residual-sac-setpoint", "gains-ppo"), strict=True):
         shutil.copytree(shipped_policy_folder(name), run / "policy")
     assert select_seed.main(["--episodes", "4", str(runs[0])]) == 0
     out = capsys.readouterr().out
     assert out.startswith("4 validation episodes, seeds 500-503, sensor set extended\n")
-    assert "| zero residual (adaptive) |  | 0.0919 | 0.0073 | 0.846 | 1.000x | 1.364 | 0.600 |" in out
-    assert f"| {runs[0]} | 1 | 0.0849 | 0.0136 | 0.713 | 0.843x | 1.118 | 0.396 |" in out
+    assert "| zero residual (adaptive-dither) |  | 0.0919 | 0.0045 | 0.874 | 1.000x | 1.390 | 0.603 |" in out
+    assert f"| {runs[0]} | 5 | 0.0724 | 0.0045 | 0.679 | 0.777x | 1.021 | 0.603 |" in out
     assert out.strip().endswith(f"lowest selection cost: {runs[0]}")
     lines = {}
     for rig in ("extended", "paper"):  # --sensor-set: the same episodes on another rig
@@ -66,32 +66,31 @@ def test_select_seed_scores_runs_by_the_mean_excursion_on_validation_episodes(mo
 
 
 def test_returns_table_runs_a_policy_on_its_own_task_only(monkeypatch, capsys):
-    """The v4 policy (its hidden entries a JSON list) is v4's; the setpoint-gated one (trained on v5
-    with v6's gate) is v6's, and v5's gated one is not; on v3 the v4 policy is refused before any
-    row runs."""
+    """The setpoint-gated residual (trained on v6) acts alike on v7, whose reward alone differs; the
+    gain schedule is refused there before any row runs."""
     monkeypatch.syspath_prepend(str(TRAINING))
     returns_table = importlib.import_module("returns_table")
-    newest_first = tuple(f"MicroGravityLanding-Residual-v{v}" for v in (7, 6, 5, 4, 3, 2, 1))
-    assert (
-        *newest_first,
+    assert returns_table.ENV_IDS == (
+        "MicroGravityLanding-Residual-v7",
+        "MicroGravityLanding-Residual-v6",
         "MicroGravityLanding-GainScheduling-v1",
         "MicroGravityLanding-Command-v1",
-    ) == returns_table.ENV_IDS
-    returns_table.policy_actor("MicroGravityLanding-Residual-v4", "residual-sac-adaptive")
-    returns_table.policy_actor("MicroGravityLanding-Residual-v6", "residual-sac-setpoint")
-    with pytest.raises(ValueError, match="trained with residual_gate_on 'action'"):
-        returns_table.policy_actor("MicroGravityLanding-Residual-v6", "residual-sac-gated")
+    )
+    for env_id in returns_table.ENV_IDS[:2]:
+        returns_table.policy_actor(env_id, "residual-sac-setpoint")
+    with pytest.raises(ValueError, match="policy 'gains-ppo' was trained with action_mode 'gains'"):
+        returns_table.policy_actor("MicroGravityLanding-Residual-v7", "gains-ppo")
     with pytest.raises(SystemExit) as exit_:
-        returns_table.main(["--env", "MicroGravityLanding-Residual-v3", "--policies", "residual-sac-adaptive"])
+        returns_table.main(["--env", "MicroGravityLanding-Residual-v7", "--policies", "gains-ppo"])
     assert exit_.value.code == 2
     captured = capsys.readouterr()
-    assert "--policies: policy 'residual-sac-adaptive' was trained with hidden_observations" in captured.err
+    assert "--policies: policy 'gains-ppo' was trained with action_mode 'gains'" in captured.err
     assert captured.out == ""
 
 
 def test_returns_table_reads_a_cards_left_out_acting_key_as_its_default(tmp_path, monkeypatch):
-    """A card that writes a default (v5's gate on the action) used to be refused on v5, whose spec
-    leaves it out; a card whose gate is elsewhere is still refused."""
+    """A card that writes a default its id leaves out (the command's decision period of one) is
+    that id's; a card whose decision period is another is refused."""
     import json
     import shutil
 
@@ -100,19 +99,17 @@ def test_returns_table_reads_a_cards_left_out_acting_key_as_its_default(tmp_path
 
     monkeypatch.syspath_prepend(str(TRAINING))
     returns_table = importlib.import_module("returns_table")
-    folder = tmp_path / "explicit"
-    shutil.copytree(shipped_policy_folder("residual-sac-gated"), folder)
+    folder, env_id = tmp_path / "explicit", "MicroGravityLanding-Command-v1"
+    shutil.copytree(shipped_policy_folder("command-ppo"), folder)
     card = json.loads((folder / CARD_FILE).read_text())
-    assert "residual_gate_on" not in card["env_kwargs"]
-    card["env_kwargs"]["residual_gate_on"] = "action"
+    assert "decision_period" not in card["env_kwargs"]
+    card["env_kwargs"]["decision_period"] = 1
     (folder / CARD_FILE).write_text(json.dumps(card))
-    returns_table.policy_actor("MicroGravityLanding-Residual-v5", str(folder))
-    card["env_kwargs"]["residual_gate_on"] = "setpoint"
+    returns_table.policy_actor(env_id, str(folder))
+    card["env_kwargs"]["decision_period"] = 5
     (folder / CARD_FILE).write_text(json.dumps(card))
-    with pytest.raises(
-        ValueError, match="trained with residual_gate_on 'setpoint', not MicroGravityLanding-Residual-v5's 'action'"
-    ):
-        returns_table.policy_actor("MicroGravityLanding-Residual-v5", str(folder))
+    with pytest.raises(ValueError, match=f"trained with decision_period 5, not {env_id}'s 1"):
+        returns_table.policy_actor(env_id, str(folder))
 
 
 @pytest.mark.slow

@@ -61,7 +61,7 @@ def is_command_id(env_id: str) -> bool:
 #: The learning tasks' ids (those ``microg train`` trains on): the residual ones, the newest first (the
 #: default), then the gain-scheduling one and the command one.
 ENV_IDS = (
-    *reversed([env_id for env_id in TRAINED_IDS if action_mode(env_id) == "residual"]),
+    *sorted((env_id for env_id in TRAINED_IDS if action_mode(env_id) == "residual"), reverse=True),
     *[env_id for env_id in TRAINED_IDS if action_mode(env_id) == "gains"],
     *[env_id for env_id in TRAINED_IDS if is_command_id(env_id)],
 )

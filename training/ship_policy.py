@@ -2,7 +2,7 @@
 its evaluations into ``microg_env/policies/<name>/``, where ``microg run --controller <name>`` and
 ``microg compare`` find it.
 
-Run: ``python training/ship_policy.py logs/ppo/MicroGravityLanding-v1_1 residual-ppo``. The card
+Run: ``python training/ship_policy.py logs/ppo/MicroGravityLanding-Command-v1_1 command-ppo``. The card
 (``policy.json``) holds the exact command, seed and budget of the training and the steps and wall
 time at which this (the best) model was saved; ``training.json`` adds the whole run's totals.
 """

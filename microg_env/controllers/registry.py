@@ -196,7 +196,7 @@ def _check_env_id(card: dict[str, Any]) -> None:
     """A card's env_id, if it has one: an id this package registers whose acting settings
     (:data:`ACTING_KEYS`) the card's env_kwargs do not contradict. A run's env_kwargs are its id's
     registered ones updated by its hyperparameter entry's (:mod:`microg_env.learning.hyperparams`),
-    so an entry may change one (``research/sac_on_dither.yml`` gives v4 another base controller),
+    so an entry may change one (give v7 another base controller, say),
     but one left out is deployed at its default: where the id registers another value, the policy
     was trained with that one."""
     if "env_id" not in card:

@@ -22,7 +22,9 @@ speed-action environment (exactly as it will be deployed), on ``eval_episodes`` 
 schedules (:data:`~microg_env.scenarios.VALIDATION_SAMPLER`, longer than the training draws) with
 the training run's imperfections and randomisation, seeds from :data:`VALIDATION_SEED` (never a
 training or test seed); the cost is :func:`~microg_env.analysis.summary.selection_cost`, the PID
-tuner's with the mean excursion at the collision in place of the worst. Every file is written
+tuner's with the mean excursion at the collision in place of the worst. A model evaluated before
+its first update (an off-policy algorithm before ``learning_starts``, PPO before its first rollout
+ends) is recorded but never the best: it has learned nothing. Every file is written
 atomically; ``latest.json`` is written after its checkpoint's files, so ``--resume`` always finds a
 complete one, and continues the step count, the normalisation statistics, the replay buffer, the
 best cost, the evaluation history and the wall-clock total. A session stopped after its last checkpoint
@@ -699,8 +701,8 @@ class _Run:
         if self.state.get("base_cost") is not None:  # the line to beat, beside the cost in TensorBoard
             model.logger.record("eval/base_cost", self.state["base_cost"])
         model.logger.dump(model.num_timesteps)
-        best = self.state["best_cost"]
-        new_best = math.isfinite(cost) and (best is None or cost < best)
+        best, learned = self.state["best_cost"], getattr(model, "_n_updates", 1) > 0
+        new_best = learned and math.isfinite(cost) and (best is None or cost < best)
         row = {key: _json_number(value) for key, value in row.items()} | {"best": new_best}
         if new_best:  # saved before it is recorded: a best in evaluations.json is always on disk
             self.save_best(model, row)
@@ -712,7 +714,7 @@ class _Run:
             f"|compensation error| {_show(row['compensation_error_pct'], '.4f')} %, "
             f"x free fall {_show(row['free_fall_excursion_um'], '.3f')} um, "
             f"collision {_show(row['collision_excursion_um'], '.3f')} um, failures {failure_rate:.0%}"
-            + (" (new best)" if new_best else "")
+            + (" (new best)" if new_best else "" if learned else " (before its first update: never the best)")
         )
 
     def save_best(self, model, row: dict[str, Any]) -> None:

@@ -22,8 +22,12 @@ import microg_env
 from microg_env import cli
 from microg_env.cli import main
 from microg_env.cli.common import DROP_OPTIONS, RUN_OPTIONS, naming
+from microg_env.learning.settings import ENV_IDS
 from microg_env.task import ACTING_KEYS
 from microg_env.validate import FieldError
+
+#: What `microg train` trains with no --env.
+DEFAULT_ID = ENV_IDS[0]
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -186,7 +190,7 @@ def _cases():
     yield ["run", "--damping", "5000"], "--damping"  # over-damped
     yield ["drop", "--damping", "1e5"], "--damping"
     yield ["run", "--stiffness", "250", "--randomize"], "--stiffness"  # a draw would bottom out
-    yield ["run", "--controller", "residual-ppo", "--control-period", "500"], "--control-period"
+    yield ["run", "--controller", "residual-sac-setpoint", "--control-period", "500"], "--control-period"
     yield ["run", "--duration", "600", "--control-period", "100"], "steps"
     yield ["drop", "--mass", "700"], "--mass"
     yield ["drop", "--velocity", "0.32"], "thickness"
@@ -201,7 +205,7 @@ def _cases():
     yield ["new\nline"], "new"
     yield ["run", "--randomize", "--no-imperfections"], "--randomize"
     yield ["run", "--randomize", "--ideal"], "--randomize"  # the option's name before 0.4.0
-    yield ["run", "--controller", "residual-ppo", "--control-period", "500"], "trained at 1000 us"
+    yield ["run", "--controller", "residual-sac-setpoint", "--control-period", "500"], "trained at 1000 us"
     yield ["train", "--env", "CartPole-v1"], "--env"
     yield ["train", "--algo", "sac", "--resume", "{dir}"], "--resume"
     yield ["train", "--n-envs", "100000"], "--n-envs"
@@ -218,7 +222,7 @@ def _cases():
     yield ["run", "--rig", "nowhere.toml"], "--rig"
     yield ["export-onnx", "pid", "pid.onnx"], "POLICY"  # a baseline has no network
     yield ["export-onnx", "no-such-policy", "p.onnx"], "POLICY"
-    yield ["export-onnx", "residual-ppo", "p.txt"], "FILE"
+    yield ["export-onnx", "residual-sac-setpoint", "p.txt"], "FILE"
     # Rig logs: a bad log, output or parameter is named before any replay.
     yield ["run", "--log", "run.txt"], "--log"
     yield ["run", "--log", "run.csv", "--ideal"], "--log"
@@ -555,15 +559,15 @@ def test_compare_writes_its_folder_and_replaces_an_earlier_one(tmp_path, capsys)
 def test_train_and_resume_from_the_command_line(tmp_path, capsys):
     import yaml
 
-    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())[DEFAULT_ID]
     entry |= {"n_envs": 1, "n_steps": 64, "batch_size": 64, "n_epochs": 1, "policy_kwargs": "dict(net_arch=[8])"}
     conf = tmp_path / "ppo.yml"
-    conf.write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
+    conf.write_text(yaml.safe_dump({DEFAULT_ID: entry}))
     common = ["--eval-freq", "64", "--eval-episodes", "1", "--checkpoint-freq", "64", "--quiet"]
     logs = tmp_path / "new" / "logs"  # missing parents are made
     args = ["train", "-conf", str(conf), "--timesteps", "64", "--log-folder", str(logs), *common]
     assert main(args) == 0
-    run = logs / "ppo" / "MicroGravityLanding-v1_1"
+    run = logs / "ppo" / f"{DEFAULT_ID}_1"
     out = capsys.readouterr().out
     assert f"wrote {run}" in out
     assert "eval at 64 steps" in out
@@ -612,7 +616,7 @@ def test_a_yaml_alias_bomb_gives_a_short_error(tmp_path, capsys):
             f"{name}: &{name} [*{previous}, *{previous}, *{previous}, *{previous}, *{previous}, "
             f"*{previous}, *{previous}, *{previous}, *{previous}]"
         )
-    lines.append("MicroGravityLanding-v1: *h")
+    lines.append(f"{DEFAULT_ID}: *h")
     path = tmp_path / "bomb.yml"
     path.write_text("\n".join(lines) + "\n")
     assert path.stat().st_size < 1000
@@ -674,7 +678,7 @@ CAMPAIGN = {
 
 
 def _conf_cases():
-    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())[DEFAULT_ID]
     for key in CONF_KEYS:
         for value in BAD_VALUES:
             if (key, value) in {("normalize", "true"), ("normalize", "null"), ("env_kwargs", "null")}:
@@ -706,7 +710,7 @@ def _campaign_cases():
 @pytest.mark.parametrize(("case", "entry"), list(_conf_cases()), ids=lambda v: v if isinstance(v, str) else "")
 def test_a_generated_bad_hyperparameter_entry_is_one_line_naming_the_file(case, entry, tmp_path, capsys):
     path = tmp_path / "ppo.yml"
-    path.write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
+    path.write_text(yaml.safe_dump({DEFAULT_ID: entry}))
     logs = tmp_path / "logs"
     start = time.perf_counter()
     code = main(["train", "-conf", str(path), "--timesteps", "64", "--log-folder", str(logs), "--quiet"])
@@ -733,7 +737,7 @@ def test_a_generated_bad_campaign_file_is_one_line_naming_the_file(case, data, t
 
 
 def _policy_cases():
-    card = json.loads((REPO / "microg_env" / "policies" / "residual-ppo" / "policy.json").read_text())
+    card = json.loads((REPO / "microg_env" / "policies" / "residual-sac-setpoint" / "policy.json").read_text())
     for key in (*ACTING_KEYS, "control_period_s"):
         for value in BAD_VALUES:
             if (key, value) in {
@@ -762,7 +766,7 @@ def test_a_generated_bad_policy_card_is_one_line_naming_the_policy(case, text, t
     import shutil
 
     folder = tmp_path / "policy"
-    shutil.copytree(REPO / "microg_env" / "policies" / "residual-ppo", folder)
+    shutil.copytree(REPO / "microg_env" / "policies" / "residual-sac-setpoint", folder)
     (folder / "policy.json").write_text(text)
     before = {p.name: p.read_bytes() for p in folder.iterdir()}
     start = time.perf_counter()
@@ -780,9 +784,9 @@ def test_a_generated_bad_policy_card_is_one_line_naming_the_policy(case, text, t
 def run_folder(tmp_path_factory):
     """A finished 128-step PPO run folder to damage (copies of it)."""
     tmp_path = tmp_path_factory.mktemp("run")
-    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())["MicroGravityLanding-v1"]
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())[DEFAULT_ID]
     entry |= {"n_envs": 2, "n_steps": 64, "batch_size": 64, "n_epochs": 1, "policy_kwargs": "dict(net_arch=[8])"}
-    (tmp_path / "ppo.yml").write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
+    (tmp_path / "ppo.yml").write_text(yaml.safe_dump({DEFAULT_ID: entry}))
     args = ["train", "-conf", str(tmp_path / "ppo.yml"), "--timesteps", "128", "--eval-freq", "128"]
     args += ["--eval-episodes", "1", "--checkpoint-freq", "128", "--log-folder", str(tmp_path / "logs"), "--quiet"]
     assert main(args) == 0
@@ -792,9 +796,9 @@ def run_folder(tmp_path_factory):
 @pytest.mark.slow
 def test_train_without_sb3_contrib_names_the_extra_for_its_algorithms_resumed_runs_too(tmp_path, monkeypatch, capsys):
     """A CrossQ run resumed without --algo on a machine without sb3-contrib was a raw ImportError."""
-    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "crossq.yml").read_text())["MicroGravityLanding-v1"]
+    entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "crossq.yml").read_text())[DEFAULT_ID]
     entry |= {"learning_starts": 32, "buffer_size": 1000, "batch_size": 16, "policy_kwargs": "dict(net_arch=[8])"}
-    (tmp_path / "crossq.yml").write_text(yaml.safe_dump({"MicroGravityLanding-v1": entry}))
+    (tmp_path / "crossq.yml").write_text(yaml.safe_dump({DEFAULT_ID: entry}))
     args = ["train", "--algo", "crossq", "-conf", str(tmp_path / "crossq.yml"), "--timesteps", "64"]
     args += ["--eval-freq", "64", "--eval-episodes", "1", "--checkpoint-freq", "64", "--log-folder", str(tmp_path)]
     assert main([*args, "--quiet"]) == 0

@@ -6,6 +6,7 @@ a network that would act blind or give NaN is refused, naming its folder."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -29,22 +30,17 @@ from microg_env.interface import CARD_FILE, NETWORK_FILE, OBSERVATION_INDEX, SEN
 from microg_env.rollout.spec import RunSpec
 from microg_env.task import ACTING_KEYS
 
-#: The rigs each shipped policy reads all it read in training on: the v1-v4 residuals read the pad
-#: force and the accelerometer, which the paper's rig lacks; the gated ones, the gain schedule and
-#: the command hide them from the agent.
+#: The rigs each shipped policy reads all it read in training on: each hides the pad force and the
+#: accelerometer, which the paper's rig lacks, from its agent.
 RUNS_ON = {
     "command-ppo": {"extended", "paper"},
     "gains-ppo": {"extended", "paper"},
-    "residual-ppo": {"extended"},
-    "residual-ppo-adaptive": {"extended"},
-    "residual-sac-adaptive": {"extended"},
-    "residual-sac-gated": {"extended", "paper"},
     "residual-sac-setpoint": {"extended", "paper"},
 }
 PAPER_ONLY = SENSOR_SETS["paper"]
 
 
-def _policy(tmp_path: Path, name: str = "residual-ppo", **env_kwargs) -> Path:
+def _policy(tmp_path: Path, name: str = "residual-sac-setpoint", **env_kwargs) -> Path:
     """A copy of shipped policy ``name`` with ``env_kwargs`` changed in its card."""
     folder = tmp_path / "policy"
     shutil.copytree(shipped_policy_folder(name), folder)
@@ -54,13 +50,20 @@ def _policy(tmp_path: Path, name: str = "residual-ppo", **env_kwargs) -> Path:
     return folder
 
 
+def _reads_every_sensor(tmp_path: Path) -> Path:
+    """A policy that reads the pad force and the accelerometer (as the residuals before 0.26.0 did)."""
+    return _policy(tmp_path, hidden_observations=["support_position"])
+
+
 # -- sensor sets -------------------------------------------------------------------------------------
 
 
-def test_each_shipped_policy_runs_on_the_sensor_sets_whose_readings_it_was_trained_on():
+def test_each_policy_runs_on_the_sensor_sets_whose_readings_it_was_trained_on(tmp_path):
     assert set(shipped_policies()) == set(RUNS_ON)
-    for name, rigs in RUNS_ON.items():
-        assert "sensor_set" not in policy_card(shipped_policy_folder(name))["env_kwargs"]  # the default: extended
+    every_sensor = str(_reads_every_sensor(tmp_path))
+    for name, rigs in (*RUNS_ON.items(), (every_sensor, {"extended"})):
+        folder = shipped_policy_folder(name) if name in RUNS_ON else name
+        assert "sensor_set" not in policy_card(folder)["env_kwargs"]  # the default: extended
         for rig in SENSOR_SETS:
             if rig in rigs:
                 assert check_controller_name(name, rig) == name
@@ -74,24 +77,27 @@ def test_each_shipped_policy_runs_on_the_sensor_sets_whose_readings_it_was_train
                 assert "lander_accel, pad_force" in message
 
 
-def test_a_policy_on_a_rig_lacking_what_it_read_is_refused_before_any_run(monkeypatch, capsys):
+def test_a_policy_on_a_rig_lacking_what_it_read_is_refused_before_any_run(tmp_path, monkeypatch, capsys):
     """RunSpec (campaigns, ``microg run``), ``compare`` and the CLI refuse it before a run starts."""
     from microg_env.experiments import comparison
+
+    every_sensor = str(_reads_every_sensor(tmp_path))
 
     def no_run(*args, **kwargs):
         raise AssertionError("a run started")
 
     monkeypatch.setattr(comparison, "run_many", no_run)
-    with pytest.raises(ValueError, match="'residual-sac-adaptive' was trained on the 'extended' sensor set"):
-        RunSpec("condition-1", "residual-sac-adaptive", sensor_set="paper")
-    assert RunSpec("condition-1", "residual-sac-gated", sensor_set="paper").sensor_set == "paper"
-    with pytest.raises(ValueError, match="'residual-ppo' was trained on the 'extended' sensor set"):
-        comparison.compare(["adaptive", "residual-ppo"], ["condition-1"], seeds=1, sensor_set="paper")
-    code = main(["compare", "--controllers", "adaptive,residual-ppo-adaptive", "--sensors", "paper"])
+    refused = f"{every_sensor!r} was trained on the 'extended' sensor set"
+    with pytest.raises(ValueError, match=re.escape(refused)):
+        RunSpec("condition-1", every_sensor, sensor_set="paper")
+    assert RunSpec("condition-1", "residual-sac-setpoint", sensor_set="paper").sensor_set == "paper"
+    with pytest.raises(ValueError, match=re.escape(refused)):
+        comparison.compare(["adaptive", every_sensor], ["condition-1"], seeds=1, sensor_set="paper")
+    code = main(["compare", "--controllers", f"adaptive,{every_sensor}", "--sensors", "paper"])
     err = capsys.readouterr().err.strip()
     assert code == 2
     assert len(err.splitlines()) == 1, err
-    assert "--controllers: policy 'residual-ppo-adaptive' was trained on the 'extended' sensor set" in err
+    assert f"--controllers: policy {refused}" in err
     assert "'paper'" in err
 
 
@@ -109,7 +115,7 @@ class Recording:
 def test_a_policy_trained_on_the_papers_rig_sees_there_and_on_every_sensor_what_training_showed(tmp_path):
     """Trained on the paper's rig, a policy read 0 for the pad force and the accelerometer: deployed
     with every sensor it reads 0 there too; a policy trained on both rigs runs on both as it is."""
-    folder = _policy(tmp_path, sensor_set="paper")
+    folder = _policy(tmp_path, sensor_set="paper", hidden_observations=[])
     readings = np.linspace(0.1, 1.0, len(OBSERVATION_INDEX), dtype=np.float32)
     for rig in SENSOR_SETS:
         controller = make_controller(str(folder), 1e-3, sensor_set=rig)
@@ -125,10 +131,14 @@ def test_a_policy_trained_on_the_papers_rig_sees_there_and_on_every_sensor_what_
     for rig in (*SENSOR_SETS, "mixed"):
         assert check_controller_name(str(mixed), rig) == str(mixed)
     with pytest.raises(ValueError, match=r"which the 'paper' sensor set \(drawn by 'mixed'\) lacks"):
-        check_controller_name("residual-ppo", "mixed")
+        check_controller_name(str(_reads_every_sensor(tmp_path / "every")), "mixed")
 
 
 # -- cards -------------------------------------------------------------------------------------------
+
+
+#: The acting keys that another key's value needs (the task refuses them without it).
+NEEDS = {"residual_gate_m": ("residual_gate_on",), "residual_highpass_hz": ("residual_highpass_order",)}
 
 
 def _contradictions():
@@ -146,13 +156,14 @@ def _contradictions():
         spec = next((spec for spec in ours if key in spec.kwargs and spec.kwargs[key] != defaults[key]), None)
         if spec is None:  # no id registers it at another value than its default
             continue
-        env_kwargs = {k: v for k, v in spec.kwargs.items() if k != key}
+        left_out = (key, *NEEDS.get(key, ()))
+        env_kwargs = {k: v for k, v in spec.kwargs.items() if k not in left_out}
         yield f"{key} left out of {spec.id}", {"env_id": spec.id, "env_kwargs": env_kwargs}, key
 
 
 def _bad_cards():
     """(case, card text, what the error names) for every kind of bad card."""
-    card = json.loads((shipped_policy_folder("residual-ppo") / CARD_FILE).read_text())
+    card = json.loads((shipped_policy_folder("residual-sac-setpoint") / CARD_FILE).read_text())
     for value in ["telepathy", "Paper", "", None, 1, True, ["paper"], {"paper": 1}]:
         yield (
             f"sensor_set {value!r}",
@@ -166,7 +177,7 @@ def _bad_cards():
         ("env_kwargs.sensors is not a setting"),
     )
     text = json.dumps(card)
-    yield "repeated key", text.replace('"seed": 0', '"seed": 0, "seed": 1'), "key 'seed' is given twice"
+    yield "repeated key", text.replace('"seed": 5', '"seed": 5, "seed": 1'), "key 'seed' is given twice"
     yield (
         "repeated env_kwargs key",
         text.replace('"decision_period": 5', '"decision_period": 5, "decision_period": 1'),
@@ -203,12 +214,12 @@ def test_a_generated_bad_card_is_refused_in_one_line_naming_the_card(case, text,
 
 
 def test_a_card_may_change_an_acting_setting_of_its_env_id_as_a_training_entry_may(tmp_path):
-    """research/sac_on_dither.yml trains v4 on another base controller: its card is v4's with it."""
-    kwargs = dict(gym.spec("MicroGravityLanding-Residual-v4").kwargs)
-    folder = _policy(tmp_path, **kwargs | {"base_controller": "adaptive-dither"})
+    """An entry may train v7 on another base controller: its card is v7's with it."""
+    kwargs = dict(gym.spec("MicroGravityLanding-Residual-v7").kwargs)
+    folder = _policy(tmp_path, **kwargs | {"base_controller": "adaptive"})
     card = json.loads((folder / CARD_FILE).read_text())
-    (folder / CARD_FILE).write_text(json.dumps(card | {"env_id": "MicroGravityLanding-Residual-v4"}))
-    assert policy_card(folder)["env_kwargs"]["base_controller"] == "adaptive-dither"
+    (folder / CARD_FILE).write_text(json.dumps(card | {"env_id": "MicroGravityLanding-Residual-v7"}))
+    assert policy_card(folder)["env_kwargs"]["base_controller"] == "adaptive"
 
 
 # -- the network ---------------------------------------------------------------------------------------
@@ -311,7 +322,7 @@ def test_a_card_is_read_through_the_tasks_own_check(settings, named, tmp_path, c
 # -- one record for how a policy acts -------------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", ["residual-ppo", "residual-sac-gated", "residual-sac-setpoint"])
+@pytest.mark.parametrize("name", sorted(RUNS_ON))
 def test_the_env_the_card_and_the_loader_read_one_acting_record(name):
     """How a policy acts is one record (``ActingSettings``): its fields are the cards' acting keys,
     the task's settings extend it, and the environment its card names, the card and the loaded
@@ -345,7 +356,7 @@ def test_a_bad_acting_value_is_refused_by_the_one_check_wherever_it_comes_from(t
         ActingSettings(action_mode="residual", residual_gate_on="setpoint")
     with pytest.raises(ValueError, match=words):
         gym.make("MicroGravityLanding-v1", action_mode="residual", residual_gate_on="setpoint")
-    folder = _policy(tmp_path, action_mode="residual", residual_gate_on="setpoint")
+    folder = _policy(tmp_path, action_mode="residual", residual_gate_m=None, residual_gate_on="setpoint")
     with pytest.raises(ValueError, match=words):
         policy_card(folder)
 

@@ -307,7 +307,7 @@ def test_vectorised_controllers_equal_one_controller_per_rig():
     """A controller given n observations acts as n controllers given one each."""
     rng = np.random.default_rng(3)
     observations = rng.normal(scale=0.3, size=(40, 4, 10)).astype(np.float32)
-    for name in ("pid", "pid-dom", "feedforward", "adaptive", "adaptive-dither", "residual-ppo"):
+    for name in ("pid", "pid-dom", "feedforward", "adaptive", "adaptive-dither", "residual-sac-setpoint"):
         together = make_controller(name, 1e-3)
         apart = [make_controller(name, 1e-3) for _ in range(4)]
         for rows in observations:
@@ -324,7 +324,11 @@ def test_vectorised_controllers_equal_one_controller_per_rig():
 def test_a_batch_of_episodes_is_the_single_env_episode_of_each():
     """The comparison's batch (controllers, scenarios and randomised plants mixed in one batch)
     records each case exactly as the single-env harness does."""
-    cases = [("pid", condition(2), 1000), ("feedforward", condition(3), 1001), ("residual-ppo", condition(1), 1002)]
+    cases = [
+        ("pid", condition(2), 1000),
+        ("feedforward", condition(3), 1001),
+        ("residual-sac-setpoint", condition(1), 1002),
+    ]
     cases += [("oracle", condition(1), 1003), ("oracle", condition(2), 1004)]  # told each rig's own plant
     cases += [("adaptive", condition(1), 1005), ("adaptive", condition(3), 1006)]  # each rig its own estimate
     cases += [("adaptive-dither", condition(2), 1007)]  # and its own dither's phase

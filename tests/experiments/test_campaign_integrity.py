@@ -49,14 +49,14 @@ def test_a_policy_folder_given_new_contents_is_a_new_run_and_its_old_spec_is_ref
     """A campaign re-run after polA was replaced found its runs "already stored" (the hash read the
     path) and kept the old policy's numbers."""
     monkeypatch.chdir(tmp_path)
-    _policy(tmp_path / "polA", "residual-ppo")
+    _policy(tmp_path / "polA", "residual-sac-setpoint")
     before = RunSpec(controller="polA", **SHORT)
     written = json.loads(json.dumps(before.as_dict()))
     assert RunSpec.from_dict(written) == before
-    _policy(tmp_path / "polA", "residual-ppo-adaptive")
+    _policy(tmp_path / "polA", "gains-ppo")
     after = RunSpec(controller="polA", **SHORT)
     assert after.hash != before.hash
-    assert after.hash == RunSpec(controller="residual-ppo-adaptive", **SHORT).hash
+    assert after.hash == RunSpec(controller="gains-ppo", **SHORT).hash
     with pytest.raises(ValueError, match=r"controller_digest .*'polA'.*\(its files changed"):
         RunSpec.from_dict(written)  # a stored spec is not re-run on other contents
 
@@ -68,9 +68,9 @@ def test_a_policy_whose_files_change_after_its_run_was_specified_is_not_run_as_i
     from microg_env.rollout.runner import run, run_all
 
     monkeypatch.chdir(tmp_path)
-    _policy(tmp_path / "polA", "residual-ppo")
+    _policy(tmp_path / "polA", "residual-sac-setpoint")
     spec = RunSpec(controller="polA", **SHORT)
-    _policy(tmp_path / "polA", "residual-ppo-adaptive")  # retrained into the same folder meanwhile
+    _policy(tmp_path / "polA", "gains-ppo")  # retrained into the same folder meanwhile
     changed = "policy folder 'polA' changed since the run was specified"
     with pytest.raises(ValueError, match=changed):
         run(spec)
@@ -81,8 +81,8 @@ def test_a_policy_whose_files_change_after_its_run_was_specified_is_not_run_as_i
 
 def test_every_spelling_of_one_policy_is_one_controller(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    _policy(tmp_path / "polA", "residual-ppo")
-    spellings = ["polA", "./polA", str(tmp_path / "polA"), "residual-ppo"]
+    _policy(tmp_path / "polA", "residual-sac-setpoint")
+    spellings = ["polA", "./polA", str(tmp_path / "polA"), "residual-sac-setpoint"]
     assert len({RunSpec(controller=name, **SHORT).hash for name in spellings}) == 1
     with pytest.raises(ValueError, match=r"are the same run"):
         Campaign.from_dict({"name": "t", "base": SHORT, "sweep": {"controller": ["polA", "./polA"]}})

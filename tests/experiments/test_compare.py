@@ -14,11 +14,8 @@ from microg_env.controllers.registry import load_policy, policy_card, shipped_po
 from microg_env.experiments.comparison import QUANTITIES, TEST_SEED, compare
 from microg_env.experiments.comparison_report import COMPARISON_FILES, render_markdown, write
 from microg_env.experiments.comparison_settings import scenario_seeds
-from microg_env.interface import OBSERVATION_INDEX, SENSOR_SETS
 from microg_env.learning.hyperparams import load as load_hyperparams
 
-#: The training seed of the shipped residual-sac-gated (docs/research-log.md: the best of five).
-GATED_SEED = 6
 #: The training seed of the shipped residual-sac-setpoint (docs/research-log.md: the best of five).
 SETPOINT_SEED = 5
 REPO = Path(__file__).resolve().parents[2]
@@ -184,40 +181,6 @@ def test_compare_refuses_a_repeated_scenario_or_controller():
 # The shipped policy: how it was made, and that it does what docs/controllers.md says on held-out cases.
 
 
-def test_the_shipped_policy_records_its_training():
-    folder = shipped_policy_folder("residual-ppo")
-    card = policy_card(folder)
-    assert card["command"].startswith("microg train --algo ppo --seed 0")  # the packaged ppo.yml
-    assert card["seed"] == 0
-    assert card["env_kwargs"]["scenario_sampler"] == "training"  # never the paper's conditions
-    assert card["hyperparams"] == load_hyperparams("ppo", "MicroGravityLanding-v1").as_config()
-    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
-    assert totals["timesteps"] >= card["target_timesteps"] >= card["timesteps"]
-    assert totals["sessions"] == 1
-    assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
-
-
-def test_the_policy_shipped_for_the_registered_task_records_its_training():
-    """residual-ppo-adaptive: the best of five seeds of the packaged recipe on
-    MicroGravityLanding-Residual-v3 by the control cost on 40 validation episodes (docs/controllers.md
-    gives all five and why not by training's own five), deployed through the task's second-order
-    high-pass."""
-    folder = shipped_policy_folder("residual-ppo-adaptive")
-    card = policy_card(folder)
-    assert card["command"].startswith("microg train --env MicroGravityLanding-Residual-v3 --seed 1 ")
-    assert card["env_id"] == "MicroGravityLanding-Residual-v3"
-    assert card["hyperparams"] == load_hyperparams("ppo", "MicroGravityLanding-Residual-v3").as_config()
-    assert card["env_kwargs"]["base_controller"] == "adaptive"
-    assert (card["env_kwargs"]["residual_highpass_hz"], card["env_kwargs"]["residual_highpass_order"]) == (2.0, 2)
-    assert load_policy(folder, 1e-3)._second_stage
-    totals = json.loads((folder / "training.json").read_text(encoding="utf-8"))
-    assert totals["timesteps"] >= card["target_timesteps"] == 1_000_000
-    assert 0 < card["wall_s"] <= totals["wall_s"] <= 1800  # within 30 minutes on the 2-core machine
-    assert card["validation"]["cost"] == totals["best_cost"]  # the shipped model is the run's best
-    finished = (folder / "train.log").read_text(encoding="utf-8").strip().splitlines()[-1]
-    assert "the base controller alone (0.2007)" in finished  # the line to beat, in the log
-
-
 def _check_training_record(folder, card: dict, timesteps: int, base_cost: str) -> None:
     """A shipped run's record: trained to its target within 30 minutes on the 2-core machine, the
     shipped model the run's best, and its log saying it beats its base controller alone."""
@@ -235,56 +198,12 @@ def _check_costs_by_the_mean(folder) -> None:
         assert row["cost"] == pytest.approx(row["compensation_error_pct"] + row["collision_excursion_um"] / 10)
 
 
-def test_the_sac_policy_shipped_for_v4_records_its_training():
-    """residual-sac-adaptive: the best of five seeds of sac.yml's recipe on
-    MicroGravityLanding-Residual-v4 by the control cost on 40 validation episodes
-    (training/select_seed.py; docs/research-log.md gives all five), deployed blind to the absolute
-    positions, trained within 30 minutes."""
-    folder = shipped_policy_folder("residual-sac-adaptive")
-    card = policy_card(folder)
-    assert card["command"].startswith("microg train --algo sac --env MicroGravityLanding-Residual-v4 --seed 3 ")
-    assert card["env_id"] == "MicroGravityLanding-Residual-v4"
-    recipe = load_hyperparams("sac", "MicroGravityLanding-Residual-v4").as_config()
-    assert card["hyperparams"] == json.loads(json.dumps(recipe))  # JSON keeps the hidden entries as a list
-    assert card["env_kwargs"]["hidden_observations"] == ["support_position", "height"]
-    controller = load_policy(folder, 1e-3)
-    assert controller._hidden == [OBSERVATION_INDEX["support_position"], OBSERVATION_INDEX["height"]]
-    assert controller.policy.squash  # SAC's tanh
-    _check_training_record(folder, card, 300_000, "0.2007")
-
-
-def test_the_gated_policy_shipped_for_v5_records_its_training():
-    """residual-sac-gated: the best of five seeds of sac.yml's recipe on
-    MicroGravityLanding-Residual-v5 by the selection cost on 200 validation episodes
-    (training/select_seed.py; docs/research-log.md gives all five), each run evaluated every 2e4
-    steps on 40 episodes, deployed gated to the contact on `adaptive-dither` and reading the
-    paper's sensors; trained within 30 minutes."""
-    folder = shipped_policy_folder("residual-sac-gated")
-    card = policy_card(folder)
-    command = f"microg train --algo sac --env MicroGravityLanding-Residual-v5 --seed {GATED_SEED} "
-    assert card["command"].startswith(command)
-    assert card["env_id"] == "MicroGravityLanding-Residual-v5"
-    recipe = load_hyperparams("sac", "MicroGravityLanding-Residual-v5").as_config()
-    assert card["hyperparams"] == json.loads(json.dumps(recipe))
-    env = card["env_kwargs"]
-    assert (env["base_controller"], env["residual_gate_m"]) == ("adaptive-dither", 0.0)
-    assert env["hidden_observations"] == ["support_position", "lander_accel", "pad_force"]
-    controller = load_policy(folder, 1e-3)
-    assert controller.acting.residual_gate_m == 0.0
-    assert controller.policy.squash  # SAC's tanh
-    hidden = (*SENSOR_SETS["paper"], "support_position")
-    assert sorted(controller._hidden) == sorted(OBSERVATION_INDEX[name] for name in hidden)
-    assert "--eval-freq 20000 --eval-episodes 40 " in card["command"]
-    _check_costs_by_the_mean(folder)
-    _check_training_record(folder, card, 200_000, "0.1332")
-
-
 def test_the_setpoint_gated_policy_records_its_training():
-    """residual-sac-setpoint: the best of five seeds of research/sac_gate_on_setpoint.yml (v5's SAC
-    recipe gated on the high-passed setpoint) by the selection cost on 200 validation episodes,
-    shipped from the same seed's run of the working id's packaged recipe (sac.yml's v6 entry, the
-    same task and recipe: bit for bit the same network), evaluated every 2e4 steps on 40 episodes,
-    deployed with that gate; trained within 30 minutes."""
+    """residual-sac-setpoint: the best of five seeds of v5's SAC recipe gated on the high-passed
+    setpoint (research/sac_gate_on_setpoint.yml, retired with v5 in 0.26.0) by the selection cost
+    on 200 validation episodes, shipped from the same seed's run of the working id's packaged
+    recipe (sac.yml's v6 entry, the same task and recipe: bit for bit the same network), evaluated
+    every 2e4 steps on 40 episodes, deployed with that gate; trained within 30 minutes."""
     folder = shipped_policy_folder("residual-sac-setpoint")
     card = policy_card(folder)
     command = (
@@ -308,13 +227,19 @@ def test_the_shipped_policy_beats_the_pid_fivefold_on_held_out_cases():
     randomised plants: |compensation error| and collision excursion at least 5 times the PID's
     lower, and the collision excursion no worse than the feed-forward's."""
     result = compare(
-        ["pid", "feedforward", "residual-ppo"], ["condition-2", "heavy-second"], seeds=2, randomize=True, duration_s=9.0
+        ["pid", "feedforward", "residual-sac-setpoint"],
+        ["condition-2", "heavy-second"],
+        seeds=2,
+        randomize=True,
+        duration_s=9.0,
     )
-    assert result.failure_rate("residual-ppo") == 0.0
+    assert result.failure_rate("residual-sac-setpoint") == 0.0
     for quantity in ("compensation_error", "collision_excursion_m"):
-        pid, learned = (result.summary(c, quantity).mean for c in ("pid", "residual-ppo"))
+        pid, learned = (result.summary(c, quantity).mean for c in ("pid", "residual-sac-setpoint"))
         assert learned * 5 <= pid, quantity
-    feedforward, learned = (result.summary(c, "collision_excursion_m").mean for c in ("feedforward", "residual-ppo"))
+    feedforward, learned = (
+        result.summary(c, "collision_excursion_m").mean for c in ("feedforward", "residual-sac-setpoint")
+    )
     assert learned <= feedforward
 
 

@@ -122,7 +122,7 @@ def test_run_and_run_many_give_the_same_runs_and_a_bad_run_is_recorded():
         base,
         base.replace(controller="feedforward", seed=4),
         base.replace(gains={"ki_per_s2": 5000.0}),
-        RunSpec(**SHORT, controller="residual-ppo", control_period_us=500),  # trained at 1000 us only
+        RunSpec(**SHORT, controller="residual-sac-setpoint", control_period_us=500),  # trained at 1000 us only
     ]
     results = run_all(specs)
     assert [r.ok for r in results] == [True, True, True, False]
@@ -452,7 +452,7 @@ def test_a_batch_that_fails_midway_fails_only_its_unfinished_runs(monkeypatch):
 def test_store_keeps_one_row_per_run_and_a_retry_supersedes_a_failure(tmp_path):
     spec = RunSpec(**SHORT)
     store = ResultStore(tmp_path)
-    failed = result_row(run_all([spec.replace(controller="residual-ppo", control_period_us=500)])[0], {"k": 1})
+    failed = result_row(run_all([spec.replace(controller="residual-sac-setpoint", control_period_us=500)])[0], {"k": 1})
     ok = result_row(run_all([spec])[0], {"k": 2})
     store.write([failed | {"spec_hash": spec.hash}])
     assert store.statuses() == {spec.hash: "failed"}
@@ -669,7 +669,7 @@ def test_a_controller_giving_nan_fails_only_its_own_runs(tmp_path, monkeypatch):
     the PID's included: now only its own rigs stop, with an error naming it, and the PID's runs are
     those it runs alone."""
     folder = tmp_path / "nan-policy"
-    shutil.copytree(shipped_policy_folder("residual-ppo"), folder)
+    shutil.copytree(shipped_policy_folder("command-ppo"), folder)
     monkeypatch.setattr(MLPPolicy, "predict", lambda self, obs, deterministic=True: (np.full(len(obs), np.nan), None))
     specs = [
         RunSpec("condition-2", name, seed=seed, duration_s=0.3) for name in ("pid", str(folder)) for seed in (0, 1)

@@ -29,7 +29,7 @@ from microg_env.rollout.episode import run_episode
 
 pytest.importorskip("stable_baselines3")
 REPO = Path(__file__).resolve().parents[2]
-ENV_ID = "MicroGravityLanding-v1"
+ENV_ID = "MicroGravityLanding-Residual-v7"
 RESIDUAL = {"action_mode": "residual", "base_controller": "feedforward", "decision_period": 5}
 
 
@@ -109,7 +109,7 @@ def test_a_tqc_critic_that_would_keep_no_quantile_is_refused_before_a_run(tmp_pa
 def test_a_missing_entry_lists_the_entries(tmp_path):
     path = tmp_path / "ppo.yml"
     path.write_text("Other-v0:\n  n_envs: 1\n")
-    with pytest.raises(ValueError, match=r"no entry 'MicroGravityLanding-v1' .*Other-v0"):
+    with pytest.raises(ValueError, match=rf"no entry '{ENV_ID}' .*Other-v0"):
         hp.load("ppo", ENV_ID, path)
 
 
@@ -120,7 +120,9 @@ def _vec_env(**kwargs):
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
-    venv = VecNormalize(make_vec_env(ENV_ID, n_envs=1, seed=0, env_kwargs=RESIDUAL | {"condition": 2}))
+    venv = VecNormalize(
+        make_vec_env("MicroGravityLanding-v1", n_envs=1, seed=0, env_kwargs=RESIDUAL | {"condition": 2})
+    )
     venv.reset()
     for _ in range(50):  # statistics other than the identity
         venv.step(np.random.default_rng(0).uniform(-1, 1, (1, 1)).astype(np.float32))
@@ -475,7 +477,7 @@ def _tiny_hyperparams(tmp_path: Path, algo: str) -> Path:
 
 
 def _settings(tmp_path, algo, timesteps, **kwargs):
-    defaults = {"eval_freq": 128, "eval_episodes": 1, "checkpoint_freq": 128, "command": "pytest"}
+    defaults = {"env_id": ENV_ID, "eval_freq": 128, "eval_episodes": 1, "checkpoint_freq": 128, "command": "pytest"}
     return TrainSettings(
         algo=algo,
         timesteps=timesteps,
@@ -712,7 +714,7 @@ def test_entries_the_environment_or_the_algorithm_refuse_are_named_before_a_run_
     path = tmp_path / "bad.yml"
     path.write_text(f"{ENV_ID}:\n  n_envs: 1\n{entry}")
     with pytest.raises(ValueError, match=message):
-        resolve(TrainSettings(hyperparams=str(path)))
+        resolve(TrainSettings(env_id=ENV_ID, hyperparams=str(path)))
     assert not (tmp_path / "logs").exists()
 
 
@@ -722,7 +724,7 @@ def test_a_crossq_entry_that_would_never_update_its_actor_is_refused_before_a_ru
     path = tmp_path / "crossq.yml"
     path.write_text(f"{ENV_ID}:\n  n_timesteps: 1000\n  policy_delay: 0\n")
     with pytest.raises(ValueError, match="policy_delay must be a positive integer"):
-        resolve(TrainSettings(algo="crossq", hyperparams=str(path)))
+        resolve(TrainSettings(algo="crossq", env_id=ENV_ID, hyperparams=str(path)))
     assert not (tmp_path / "logs").exists()
 
 
@@ -730,7 +732,7 @@ def test_a_file_asking_for_more_environments_than_a_run_takes_is_refused(tmp_pat
     path = tmp_path / "bad.yml"
     path.write_text(f"{ENV_ID}:\n  n_envs: 5000\n  n_timesteps: 1000\n")
     with pytest.raises(ValueError, match="n_envs must be at most 256, got 5000"):
-        resolve(TrainSettings(hyperparams=str(path)))
+        resolve(TrainSettings(env_id=ENV_ID, hyperparams=str(path)))
 
 
 @pytest.mark.slow
@@ -927,7 +929,7 @@ def _fifo(folder):
     ("change", "message"),
     [
         (_set_env("base_controller", "{folder}"), "base_controller"),  # itself: was a RecursionError
-        (_set_env("base_controller", "residual-ppo"), "base_controller"),  # a policy: was an AttributeError
+        (_set_env("base_controller", "residual-sac-setpoint"), "base_controller"),  # a policy: was an AttributeError
         (_set_env("base_controller", None), "base_controller"),
         (_set_env("decision_period", 2.5), "decision_period"),
         (_set_env("decision_period", [5]), "decision_period"),
@@ -946,7 +948,7 @@ def test_a_bad_policy_folder_is_named_before_it_runs(tmp_path, change, message):
     from microg_env.controllers.registry import check_controller_name, shipped_policy_folder
 
     folder = tmp_path / "policy"
-    shutil.copytree(shipped_policy_folder("residual-ppo"), folder)
+    shutil.copytree(shipped_policy_folder("residual-sac-setpoint"), folder)
     change(folder)
     with pytest.raises(ValueError, match=message) as error:
         check_controller_name(str(folder))
@@ -968,7 +970,7 @@ def test_the_log_states_the_base_controllers_cost_as_the_line_to_beat(ppo_run):
     assert state["base_cost"] == pytest.approx(selection_cost(runs), rel=1e-12)
     log = (folder / "train.log").read_text()
     assert log.count("the line to beat") == 1  # once per run, not per session
-    best = min(row["cost"] for row in json.loads((folder / "evaluations.json").read_text()))
+    best = min(row["cost"] for row in json.loads((folder / "evaluations.json").read_text()) if row["best"])
     verdict = "it beats" if best < state["base_cost"] else "it does NOT beat"
     assert f"; {verdict} the base controller alone ({state['base_cost']:.4g})" in log.splitlines()[-1]
 
@@ -1098,52 +1100,46 @@ def test_a_broken_run_folder_is_named_and_left_as_it_was(ppo_run, tmp_path, chan
 
 # -- the registered learning task ----------------------------------------------------------------
 
-RESIDUAL_ID = "MicroGravityLanding-Residual-v1"
-#: The learning task's versions and the residual each defines: its limit and high-pass.
+#: The residual task's versions and what each sets beyond a residual's settings (RESIDUAL); v1-v5 are
+#: retired (test_a_retired_id_raises_naming_the_release_that_has_it).
 RESIDUAL_IDS = {
-    RESIDUAL_ID: {"residual_limit_m": 1e-6},
-    "MicroGravityLanding-Residual-v2": {"residual_limit_m": 3e-6, "residual_highpass_hz": 2.0},
-    "MicroGravityLanding-Residual-v3": {
-        "residual_limit_m": 3e-6,
-        "residual_highpass_hz": 2.0,
-        "residual_highpass_order": 2,
-    },
-    "MicroGravityLanding-Residual-v4": {
-        "residual_limit_m": 3e-6,
-        "residual_highpass_hz": 2.0,
-        "residual_highpass_order": 2,
-        "hidden_observations": ("support_position", "height"),
-    },
-    "MicroGravityLanding-Residual-v5": {
+    "MicroGravityLanding-Residual-v6": {
         "base_controller": "adaptive-dither",
         "residual_limit_m": 3e-6,
         "residual_highpass_hz": 2.0,
         "residual_highpass_order": 2,
         "residual_gate_m": 0.0,
+        "residual_gate_on": "setpoint",
         "hidden_observations": ("support_position", "lander_accel", "pad_force"),
     },
-}
-RESIDUAL_IDS["MicroGravityLanding-Residual-v6"] = RESIDUAL_IDS["MicroGravityLanding-Residual-v5"] | {
-    "residual_gate_on": "setpoint"
 }
 RESIDUAL_IDS["MicroGravityLanding-Residual-v7"] = RESIDUAL_IDS["MicroGravityLanding-Residual-v6"] | {
     "reward_scale_m": 1e-6
 }
-#: The versions on `adaptive-dither`, gated to the contact, at x0 = 10 nm.
-GATED_IDS = ("MicroGravityLanding-Residual-v5", "MicroGravityLanding-Residual-v6")
-#: The packaged files (by algorithm) whose entry for a residual version is checked against the id:
-#: ppo.yml's unless listed; every file has one for the working id (v6), all but crossq.yml for v5.
+#: The packaged files (by algorithm) whose entry for a residual version is checked against the id.
 PACKAGED_ENTRIES = {
-    "MicroGravityLanding-Residual-v5": ("ppo", "sac", "tqc"),
-    "MicroGravityLanding-Residual-v6": hp.ALGORITHMS,
-    "MicroGravityLanding-Residual-v7": ("sac",),
+    "MicroGravityLanding-Residual-v6": ("sac",),
+    "MicroGravityLanding-Residual-v7": hp.ALGORITHMS,
 }
 #: Each version's reward_threshold: its zero residual's mean return (its base controller's).
-THRESHOLDS = (
-    dict.fromkeys(RESIDUAL_IDS, microg_env.REWARD_THRESHOLD)
-    | dict.fromkeys(GATED_IDS, microg_env.GATED_REWARD_THRESHOLD)
-    | {"MicroGravityLanding-Residual-v7": microg_env.ALIGNED_REWARD_THRESHOLD}
-)
+THRESHOLDS = {
+    "MicroGravityLanding-Residual-v6": microg_env.GATED_REWARD_THRESHOLD,
+    "MicroGravityLanding-Residual-v7": microg_env.ALIGNED_REWARD_THRESHOLD,
+}
+
+
+@pytest.mark.parametrize("version", range(1, 6))
+def test_a_retired_id_raises_naming_the_release_that_has_it(version):
+    """Residual-v1 to v5 retired in 0.26.0, Gymnasium's way: the id is known and refuses, naming
+    the release that has it and the id that follows it, for the single and the vector env."""
+    from gymnasium.error import DeprecatedEnv
+
+    env_id = f"MicroGravityLanding-Residual-v{version}"
+    words = f"^{env_id} is retired: microg-env 0.25.0 has it .* its successor is MicroGravityLanding-Residual-v7$"
+    with pytest.raises(DeprecatedEnv, match=words):
+        gym.make(env_id)
+    with pytest.raises(DeprecatedEnv, match=words):
+        gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point")
 
 
 @pytest.mark.parametrize("env_id", RESIDUAL_IDS)
@@ -1170,9 +1166,9 @@ def test_the_residual_task_is_registered_with_its_defaults_and_passes_check_env(
 
 def test_a_zero_action_is_the_base_controller_on_every_version_of_the_residual_task():
     """The high-pass and the gate pass a zero residual as zero and the base controller reads every
-    sensor whatever the agent is shown, so every version's zero action is v1's on the same base
-    controller, bit for bit (v4's, v5's and v6's agents see 0 in their hidden entries), and versions on
-    the same base share the zero residual's return as their reward_threshold."""
+    sensor whatever the agent is shown, so every version's zero action is a plain residual's (no
+    high-pass, no gate, every entry shown) on the same base controller, bit for bit (the agent sees 0
+    in its hidden entries)."""
 
     def run(env: gym.Env) -> tuple[np.ndarray, list[float]]:
         observations, rewards = [env.reset(seed=7)[0]], []
@@ -1187,16 +1183,18 @@ def test_a_zero_action_is_the_base_controller_on_every_version_of_the_residual_t
         base = gym.spec(env_id).kwargs["base_controller"]
         scale = gym.spec(env_id).kwargs.get("reward_scale_m", 1e-8)  # v7 scores x from 1 um
         if (base, scale) not in references:
-            references[base, scale] = run(gym.make(RESIDUAL_ID, base_controller=base, reward_scale_m=scale))
+            plain = RESIDUAL | {"base_controller": base, "reward_scale_m": scale, "residual_limit_m": 3e-6}
+            plain |= {"scenario_sampler": "training", "domain_randomization": "full"}
+            references[base, scale] = run(gym.make("MicroGravityLanding-v1", **plain))
         observations, rewards = run(gym.make(env_id))
-        v1_observations, v1_rewards = references[base, scale]
-        assert rewards == v1_rewards, env_id
+        plain_observations, plain_rewards = references[base, scale]
+        assert rewards == plain_rewards, env_id
         hidden = [OBSERVATION_INDEX[name] for name in RESIDUAL_IDS[env_id].get("hidden_observations", ())]
-        shown = v1_observations.copy()
+        shown = plain_observations.copy()
         shown[:, hidden] = 0.0
         np.testing.assert_array_equal(observations, shown, err_msg=env_id)
-        assert v1_observations[:, hidden].any(axis=0).all(), env_id  # what it hides is there to hide
-    assert set(references) == {("adaptive", 1e-8), ("adaptive-dither", 1e-8), ("adaptive-dither", 1e-6)}
+        assert plain_observations[:, hidden].any(axis=0).all(), env_id  # what it hides is there to hide
+    assert set(references) == {("adaptive-dither", 1e-8), ("adaptive-dither", 1e-6)}
 
 
 @pytest.mark.parametrize("env_id", RESIDUAL_IDS)
@@ -1261,10 +1259,10 @@ def test_an_entry_is_checked_on_as_many_environments_as_the_run_steps(tmp_path):
     entry = yaml.safe_load((REPO / "microg_env" / "hyperparams" / "ppo.yml").read_text())[ENV_ID]
     path = tmp_path / "ppo.yml"
     path.write_text(yaml.safe_dump({ENV_ID: entry | {"n_envs": 8, "n_steps": 1, "batch_size": 8}}))
-    assert resolve(TrainSettings(hyperparams=str(path))).algo_kwargs["n_steps"] == 1
+    assert resolve(TrainSettings(env_id=ENV_ID, hyperparams=str(path))).algo_kwargs["n_steps"] == 1
     path.write_text(yaml.safe_dump({ENV_ID: entry | {"n_envs": 1, "n_steps": 1, "batch_size": 1}}))
     with pytest.raises(ValueError, match="PPO refuses it"):
-        resolve(TrainSettings(hyperparams=str(path)))
+        resolve(TrainSettings(env_id=ENV_ID, hyperparams=str(path)))
 
 
 @pytest.mark.parametrize(("algo", "kwargs"), [("ppo", {"n_steps": 48, "batch_size": 32}), ("sac", {"train_freq": 64})])

@@ -21,7 +21,7 @@ from microg_env.learning.train import TrainSettings, algorithm, resolve, resumed
 
 pytest.importorskip("stable_baselines3")
 pytest.importorskip("sb3_contrib")
-ENV_ID = "MicroGravityLanding-v1"
+ENV_ID = "MicroGravityLanding-Residual-v7"
 #: A change that leaves a key out of the entry.
 ABSENT = object()
 
@@ -39,7 +39,7 @@ def _conf(tmp_path: Path, algo: str, **changes) -> Path:
 
 
 def _settings(tmp_path: Path, algo: str, conf: Path, **kwargs) -> TrainSettings:
-    defaults = {"eval_freq": 64, "eval_episodes": 1, "checkpoint_freq": 64, "command": "pytest"}
+    defaults = {"env_id": ENV_ID, "eval_freq": 64, "eval_episodes": 1, "checkpoint_freq": 64, "command": "pytest"}
     return TrainSettings(algo=algo, hyperparams=str(conf), log_folder=str(tmp_path / "logs"), **(defaults | kwargs))
 
 
@@ -216,7 +216,9 @@ def test_an_option_is_refused_before_a_run_exactly_when_its_policy_cannot_be_exp
 def test_the_cli_names_the_file_and_key_of_a_non_finite_hyperparameter_and_writes_nothing(tmp_path, capsys):
     conf = _conf(tmp_path, "sac", ent_coef=math.nan)
     logs = tmp_path / "logs"
-    assert main(["train", "--algo", "sac", "-conf", str(conf), "--log-folder", str(logs), "--quiet"]) == 2
+    assert (
+        main(["train", "--algo", "sac", "--env", ENV_ID, "-conf", str(conf), "--log-folder", str(logs), "--quiet"]) == 2
+    )
     err = capsys.readouterr().err
     assert err == f"microg: error: --hyperparams: sac.yml[{ENV_ID}].ent_coef must be a finite number, got nan\n"
     assert not logs.exists()
@@ -257,6 +259,19 @@ def _run_settings(tmp_path: Path, timesteps: int) -> TrainSettings:
     return _settings(tmp_path, "ppo", conf, checkpoint_freq=128, timesteps=timesteps)
 
 
+def test_a_model_evaluated_before_its_first_update_is_never_the_best(tmp_path, costs):
+    """SAC evaluated at 64 steps, before learning_starts (100): its untrained policy, here the lowest
+    cost, is recorded but not kept; the best is the first evaluation after an update (it was the
+    untrained model, as rl_zoo3's best_model.zip can be)."""
+    conf = _conf(tmp_path, "sac", learning_starts=100)
+    costs.table = {64: 0.1, 128: 0.5, 192: 0.4}
+    folder = train(_settings(tmp_path, "sac", conf, timesteps=192), progress=costs.progress)
+    assert _rows(folder) == [(64, False, 0.1), (128, True, 0.5), (192, True, 0.4)]
+    assert _card(folder)["timesteps"] == 192
+    assert "eval at 64 steps: cost 0.1" in (folder / "train.log").read_text()
+    assert "(before its first update: never the best)" in (folder / "train.log").read_text()
+
+
 @pytest.fixture(scope="module")
 def killed_run(tmp_path_factory):
     """A PPO run evaluated every 64 steps, checkpointed every 128, killed after its evaluation at
@@ -270,7 +285,7 @@ def killed_run(tmp_path_factory):
             train(_run_settings(tmp_path, 256), progress=costs.progress)
     folder = tmp_path / "logs" / "ppo" / f"{ENV_ID}_1"
     assert json.loads((folder / "checkpoints" / "latest.json").read_text())["timesteps"] == 128
-    assert _rows(folder) == [(64, True, 0.5), (128, True, 0.4), (192, True, 0.1)]
+    assert _rows(folder) == [(64, False, 0.5), (128, True, 0.4), (192, True, 0.1)]  # 64: before its first update
     assert _card(folder)["timesteps"] == 192  # the discarded session's best is the one on disk
     return tmp_path, folder
 
@@ -305,7 +320,7 @@ def test_a_resume_drops_the_killed_sessions_evaluations_and_puts_back_the_best_m
     """The resumed session evaluates 192 again and never beats 128's cost: the killed session's 192
     (cost 0.1) used to stay in evaluations.json beside the new 192, and its model stayed the best."""
     folder = _resume(killed_run, tmp_path, costs, {192: 0.45, 256: 0.42})
-    assert _rows(folder) == [(64, True, 0.5), (128, True, 0.4), (192, False, 0.45), (256, False, 0.42)]
+    assert _rows(folder) == [(64, False, 0.5), (128, True, 0.4), (192, False, 0.45), (256, False, 0.42)]
     card = _card(folder)
     assert (card["timesteps"], card["validation"]["cost"]) == (128, 0.4)
     assert (folder / "best_model.zip").read_bytes() == (folder / "policy" / "model.zip").read_bytes()
@@ -318,7 +333,7 @@ def test_a_resume_drops_the_killed_sessions_evaluations_and_puts_back_the_best_m
 def test_a_resume_leaves_one_evaluation_per_step_and_one_best_timeline(killed_run, tmp_path, costs):
     """The resumed session's 192 beats everything: two rows of step 192, both best, used to follow."""
     folder = _resume(killed_run, tmp_path, costs, {192: 0.05, 256: 0.3})
-    assert _rows(folder) == [(64, True, 0.5), (128, True, 0.4), (192, True, 0.05), (256, False, 0.3)]
+    assert _rows(folder) == [(64, False, 0.5), (128, True, 0.4), (192, True, 0.05), (256, False, 0.3)]
     card = _card(folder)
     assert (card["timesteps"], card["validation"]["cost"]) == (192, 0.05)
     assert card["resume_commands"] == ["pytest"]  # the resumed session's model, not the killed one's

@@ -11,7 +11,7 @@ from microg_env.rollout.episode import evaluate
 SEEDS = range(40, 43)
 
 
-@pytest.mark.parametrize("controller", ["pid", "residual-ppo"])
+@pytest.mark.parametrize("controller", ["pid", "residual-sac-setpoint"])
 @pytest.mark.slow
 def test_a_batched_evaluation_is_the_single_envs_episodes_one_after_another(controller):
     """Training validates on sampled schedules and drawn plants: each seed's rig draws the schedule

@@ -49,7 +49,7 @@ name: resume-test
 base: {scenario: condition-2, duration_s: 0.2}
 sweep:
   qzs.guide_friction_n, qzs.guide_static_friction_n: [[0.1, 0.125], [0.3, 0.375], [0.5, 0.625]]
-  controller: [pid, feedforward, residual-ppo]
+  controller: [pid, feedforward, residual-sac-setpoint]
   control_period_us: [1000, 500]
 seeds: {first: 0, count: 2}
 batch_size: 4
@@ -217,7 +217,7 @@ def test_a_killed_campaign_leaves_no_ray_process_behind_and_resumes_whole(tmp_pa
 
 @pytest.mark.slow
 def test_a_campaign_stopped_by_sigterm_runs_only_what_is_missing(tmp_path):
-    """36 runs (6 of them fail: residual-ppo refuses 500 us). SIGTERM (Ctrl-C's path; it used to
+    """36 runs (6 of them fail: residual-sac-setpoint refuses 500 us). SIGTERM (Ctrl-C's path; it used to
     print Ray's stack dump) after the first stored batch: exit 130 in one line, no process of its
     session left, every finished row kept, no half-written file. The same command then runs only
     what is missing, and the table holds one row per run with every metric. A third start, on a
@@ -253,7 +253,7 @@ def test_a_campaign_stopped_by_sigterm_runs_only_what_is_missing(tmp_path):
     failed = [r for r in rows if r["status"] == "failed"]
     assert len(failed) == 6
     assert all("1000 us" in r["error"] for r in failed)
-    assert all(r["controller"] == "residual-ppo" and r["control_period_us"] == 500 for r in failed)
+    assert all(r["controller"] == "residual-sac-setpoint" and r["control_period_us"] == 500 for r in failed)
     ok = [r for r in rows if r["status"] == "ok"]
     assert all(np.isfinite(r["flexible_unit_excursion_free_fall_m"]) for r in ok)
 

@@ -81,7 +81,7 @@ def _draw(by_controller: dict, controllers: list, folder: Path) -> None:
     axes = figure.subplots(1, 3)
     for ax, (column, scale, label, _) in zip(axes, QUANTITIES[:3], strict=True):
         ax.boxplot([_values(by_controller[c,][f"{column}_list"], scale) for c in controllers], whis=(5, 95))
-        ax.set_xticks(range(1, len(controllers) + 1), controllers, fontsize=7)
+        ax.set_xticks(range(1, len(controllers) + 1), controllers, fontsize=7, rotation=20, ha="right")
         ax.set_yscale("log")
         ax.set_title(label.replace("\\", ""), fontsize=9)
     figure.tight_layout()
