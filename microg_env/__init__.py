@@ -11,10 +11,10 @@ import importlib
 from typing import TYPE_CHECKING
 
 from gymnasium.envs.registration import register, registry
-from gymnasium.error import DeprecatedEnv
 
 from microg_env.interface import RESIDUAL_HIGHPASS_HZ, SENSOR_SETS
 from microg_env.params import MAX_CONTROL_STEPS
+from microg_env.retired import RETIRED, refuse
 from microg_env.version import __version__ as __version__
 
 #: The package's names and the modules that define them.
@@ -95,24 +95,17 @@ def _register(env_id: str, kwargs: dict | None = None, reward_threshold: float |
         )
 
 
-def _retired(env_id: str, release: str, successor: str, **_kwargs) -> None:
-    """Refuse a retired id (Gymnasium's DeprecatedEnv), naming the last release that had it."""
-    raise DeprecatedEnv(
-        f"{env_id} is retired: microg-env {release} has it (pip install 'microg-env=={release}'); "
-        f"its successor is {successor}"
-    )
-
-
-def _retire(env_id: str, release: str, successor: str) -> None:
-    """Register ``env_id`` as retired: ``gym.make`` and ``gym.make_vec`` raise with a pointer to ``release``."""
+def _retire(env_id: str) -> None:
+    """Register ``env_id`` as retired (:mod:`microg_env.retired`): ``gym.make`` and ``gym.make_vec`` raise."""
     if env_id not in registry:
-        refuse = functools.partial(_retired, env_id, release, successor)
-        register(id=env_id, entry_point=refuse, vector_entry_point=refuse)
+        refusal = functools.partial(refuse, env_id)
+        register(id=env_id, entry_point=refusal, vector_entry_point=refusal)
 
 
 _register("MicroGravityLanding-v1")
-for _version in range(1, 6):
-    _retire(f"MicroGravityLanding-Residual-v{_version}", "0.25.0", "MicroGravityLanding-Residual-v7")
+for _retired_id in RETIRED:
+    _retire(_retired_id)
+del _retired_id
 # The residual task: a high-passed x setpoint within +-3 um (interface.residual_setpoint, two stages at
 # RESIDUAL_HIGHPASS_HZ, so the residual shapes transients and cannot move the steady x its base holds) on
 # the best deployable classical controller (`adaptive-dither`), held 5 control periods, gated to the

@@ -11,13 +11,13 @@ PACKAGE = Path(__file__).resolve().parents[1] / "microg_env"
 #: The package's layers, bottom first: a module may import its own layer and those below it. The
 #: package itself (``microg_env/__init__.py``, which registers the environments) is above them all.
 LAYERS = (
-    ("validate", "compiled", "version", "workers"),
+    ("validate", "compiled", "version", "workers", "retired"),
     ("files", "params"),
     ("rigs", "scenarios", "trajectory"),
     ("logs",),  # a rig's logs, in the schema of its scenarios
     ("sim",),
     ("imperfections",),
-    ("interface", "task"),  # the env-controller contract, and the task settings it is made with
+    ("interface", "task", "scores"),  # the env-controller contract, the task settings, the tasks' scores
     ("controllers",),
     ("envs",),
     ("analysis",),  # pure functions of a trajectory

@@ -108,7 +108,7 @@ def test_installed_wheel_builds_drops_and_runs_the_shipped_policy_from_another_f
     assert run["termination_reason"] is None
     assert run["flexible_unit_excursion_free_fall_m"] < 1e-6  # the PID's is about 3 um
     hyperparams = (
-        "from microg_env.learning.hyperparams import load; print(load('ppo', 'MicroGravityLanding-v1').n_envs)"
+        "from microg_env.learning.hyperparams import load; print(load('ppo', 'MicroGravityLanding-Command-v1').n_envs)"
     )
     assert output("python", "-c", hyperparams).strip() == "8"
 

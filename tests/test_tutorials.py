@@ -27,7 +27,7 @@ def test_quickstart_runs_an_episode_and_plots_it(tmp_path, run_tutorial):
 
 
 @pytest.mark.slow
-def test_training_tutorial_trains_and_compares_paired_against_adaptive(tmp_path, run_tutorial):
+def test_training_tutorial_trains_and_compares_paired_against_adaptive_dither(tmp_path, run_tutorial):
     out = run_tutorial("02_train_residual.py", tmp_path, "--timesteps", "2048", "--seeds", "2", "--duration", "7")
     folder = tmp_path / "comparison"
     assert sorted(p.name for p in folder.iterdir()) == [
@@ -37,7 +37,7 @@ def test_training_tutorial_trains_and_compares_paired_against_adaptive(tmp_path,
         "x_landing.png",
     ]
     data = json.loads((folder / "comparison.json").read_text())
-    assert data["controllers"] == ["my-residual", "adaptive", "feedforward"]
+    assert data["controllers"] == ["my-residual", "adaptive-dither", "feedforward"]
     assert data["labels"]["my-residual"].endswith("policy")
     assert data["randomize"] == "wider"
     pair = data["paired"]["my-residual"]["collision_excursion_m"]

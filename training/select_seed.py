@@ -9,7 +9,7 @@ the line's on the same episodes. ``--sensor-set``
 validates on another rig than the runs' own (``paper``: the paper's sensors).
 
 Run: ``python training/select_seed.py [--episodes N] [--sensor-set paper]
-logs/sac/MicroGravityLanding-Residual-v5_1 ...``
+logs/sac/MicroGravityLanding-Residual-v7_1 ...``
 """
 
 from __future__ import annotations

@@ -217,7 +217,7 @@ def add_commands(commands) -> None:
     train = commands.add_parser(
         "train",
         help="train a learned controller with stable-baselines3 (rl-baselines3-zoo layout)",
-        description="Train PPO, SAC, TQC or CrossQ on MicroGravityLanding-v1 with the hyperparameters of "
+        description="Train PPO, SAC, TQC or CrossQ on a learning task with the hyperparameters of "
         "microg_env/hyperparams/<algo>.yml (packaged), into logs/<algo>/<env>_<n>/: config, best model, "
         "normalisation, checkpoints, TensorBoard events, monitor files, evaluations by the project's metrics "
         "and the exported policy.",

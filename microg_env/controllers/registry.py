@@ -39,6 +39,7 @@ from microg_env.interface import (
     shipped_policies,
 )
 from microg_env.params import CONTROL_PERIOD_RANGE_S, RigParams
+from microg_env.retired import RETIRED, retirement
 from microg_env.task import ACTING_KEYS, ActingSettings, TaskSettings
 from microg_env.validate import FieldError, fault
 
@@ -202,6 +203,8 @@ def _check_env_id(card: dict[str, Any]) -> None:
     if "env_id" not in card:
         return
     env_id, env = card["env_id"], card["env_kwargs"]
+    if isinstance(env_id, str) and env_id in RETIRED:
+        raise ValueError(f"env_id {retirement(env_id)}")
     ours = sorted(name for name, spec in gym.registry.items() if spec.entry_point == ENTRY_POINT)
     if not isinstance(env_id, str) or env_id not in ours:
         raise ValueError(f"env_id must be one of {', '.join(ours)}, got {validate.shown(env_id)}")

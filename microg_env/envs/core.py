@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from microg_env import validate
+from microg_env import scores, validate
 from microg_env.compiled import mj_step
 from microg_env.controllers.base import tell_plants
 from microg_env.controllers.pid import PID
@@ -90,6 +90,8 @@ STATE_KEYS = (
 #: What ``info`` holds: the state, why the episode terminated, and the episode's sensor set (the
 #: drawn one with ``sensor_set="mixed"``).
 INFO_KEYS = (*STATE_KEYS, "termination_reason", "sensor_set")
+#: The ``info`` key of an episode's normalised score, at the step that ends it (:mod:`microg_env.scores`).
+SCORE_KEY = "normalized_score"
 
 
 @dataclass(frozen=True)
@@ -198,6 +200,10 @@ class LandingCore:
         self.observation = np.zeros((n, len(SCALES)), dtype=np.float32)
         self.steps = np.zeros(n, dtype=np.int64)
         self.max_steps = np.zeros(n, dtype=np.int64)
+        self.scenario_periods = np.zeros(n, dtype=np.int64)  # the control periods of the rig's schedule
+        self.episode_return = np.zeros(n)  # the sum of the rig's step rewards this episode
+        #: The task's normalised score (None: a task made otherwise than a scored id registers it).
+        self.score = scores.REFERENCES.get(scores.scored_id(settings))
         #: Most control periods an episode runs whatever its schedule (a vector env's ``max_episode_steps``).
         self.period_limit = MAX_CONTROL_STEPS
         self.next_load = np.zeros(n, dtype=np.int64)
@@ -335,6 +341,7 @@ class LandingCore:
             )
             self.x_stiffness[i] = unit.x_stiffness_n_per_m
             periods = round(episode.scenario.duration_s / self.settings.control_period_s)
+            self.scenario_periods[i] = periods
             self.max_steps[i] = min(periods, self.period_limit)
             self.reference_weight_n[i] = episode.scenario.loads[0].mass_kg * episode.params.gravity_m_s2
             self.gravity[i] = episode.params.gravity_m_s2
@@ -348,6 +355,7 @@ class LandingCore:
         self.position_ref[ids] = 0.0 if rig.ideal_drive else physics.ctrl[ids, 0]
         self.motor_speed[ids] = np.nan
         self.steps[ids] = 0
+        self.episode_return[ids] = 0.0
         self.next_load[ids] = 0
         self.placed[ids] = False
         self.placed_load_kg[ids] = 0.0
@@ -449,7 +457,23 @@ class LandingCore:
                 break
             if left < rigs.size:
                 positions, rigs = positions[going], rigs[going]
-        return total / periods, codes, truncated, periods
+        reward = total / periods
+        self.episode_return[ids] += reward
+        return reward, codes, truncated, periods
+
+    def shortfall(self, ids: np.ndarray) -> np.ndarray:
+        """How far rigs ``ids``' returns so far fall short of a whole episode's most (a step pays at
+        most 1): its steps, the schedule's control periods over the decision period rounded up,
+        minus the return (:mod:`microg_env.scores`)."""
+        whole = -(-self.scenario_periods[ids] // self.settings.decision_period)
+        return whole - self.episode_return[ids]
+
+    def scores(self, ids: np.ndarray, codes: np.ndarray, truncated: np.ndarray) -> np.ndarray:
+        """The normalised scores of rigs ``ids`` whose episodes just ended by themselves (``codes``
+        not 0: terminated; ``truncated`` at the schedule's end), NaN for the others, which a step
+        limit cut short or which go on. Only on a task with a score (:attr:`score`)."""
+        own_end = (codes != 0) | (truncated & (self.steps[ids] >= self.scenario_periods[ids]))
+        return np.where(own_end, self.score.score(self.shortfall(ids)), np.nan)
 
     def can_run_pid(self, controller: Any) -> bool:
         """Whether :meth:`run_pid` can drive this core's rig with ``controller``: a :class:`PID`
@@ -507,8 +531,15 @@ class LandingCore:
                 done += 1
             self._noise.exhausted |= why == period.NOISE_USED
             if sums[2][0] != 0 or sums[3][0]:
+                self._add_returns(rewards[row : row + done])
                 return done, int(sums[2][0])
+        self._add_returns(rewards[row : row + done])
         return done, None
+
+    def _add_returns(self, rewards: np.ndarray) -> None:
+        """The one rig's step ``rewards`` added to its return one by one, as :meth:`step` adds them."""
+        for reward in rewards.tolist():
+            self.episode_return[0] += reward
 
     def _control_period(
         self,

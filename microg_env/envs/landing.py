@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from typing import Any, ClassVar
@@ -11,7 +12,7 @@ import numpy as np
 from gymnasium.error import ResetNeeded
 
 from microg_env import validate
-from microg_env.envs.core import STATE_KEYS, TERMINATION_REASONS, LandingCore, check_actions
+from microg_env.envs.core import SCORE_KEY, STATE_KEYS, TERMINATION_REASONS, LandingCore, check_actions
 from microg_env.envs.period import x_reward
 from microg_env.interface import (
     OBSERVATION_INDEX,
@@ -256,8 +257,12 @@ class MicroGravityLandingEnv(gym.Env):
         reward, codes, truncated, _ = core.step(_ONE, actions, [self.np_random])
         if before is not None and before != int(core.steps[0]) // self._human_every:
             self.render()
-        observation = core.shown()[0]
-        return observation, float(reward[0]), bool(codes[0]), bool(truncated[0]), self._info(codes)
+        observation, info = core.shown()[0], self._info(codes)
+        if core.score is not None and (codes[0] or truncated[0]):
+            score = float(core.scores(_ONE, codes, truncated)[0])
+            if not math.isnan(score):  # the episode ended by itself, not at a step limit
+                info[SCORE_KEY] = score
+        return observation, float(reward[0]), bool(codes[0]), bool(truncated[0]), info
 
     def _info(self, codes: np.ndarray) -> dict[str, Any]:
         info = dict(zip(STATE_KEYS, self.core.state(_ONE)[0].tolist(), strict=True))  # plain floats

@@ -24,7 +24,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from microg_env import validate
-from microg_env.envs.core import INFO_KEYS, LandingCore, check_actions
+from microg_env.envs.core import INFO_KEYS, SCORE_KEY, LandingCore, check_actions
 from microg_env.envs.landing import render_settings
 from microg_env.interface import action_space, observation_space
 from microg_env.scenarios import Scenario
@@ -164,12 +164,18 @@ class MicroGravityLandingVectorEnv(VectorEnv):
         ended = terminated | truncated
         observations = core.shown()
         info = self._info(self._all, codes)
+        scores = core.scores(self._all, codes, truncated) if core.score is not None and ended.any() else None
+        scored = scores is not None and not np.isnan(scores).all()
+        if scored:  # the scores of the rigs that ended by themselves, before a reset clears their returns
+            info[SCORE_KEY], info[f"_{SCORE_KEY}"] = np.nan_to_num(scores), ~np.isnan(scores)
         if self.autoreset_mode == AutoresetMode.SAME_STEP and ended.any():
             done = self._all[ended]
             final_obs = np.full(n, None, dtype=object)
             for i in done:
                 final_obs[i] = observations[i].copy()
             final_info = self._info(done, codes[done])
+            if scored:
+                final_info[SCORE_KEY], final_info[f"_{SCORE_KEY}"] = info.pop(SCORE_KEY), info.pop(f"_{SCORE_KEY}")
             core.reset(done, self._rngs)
             observations[done] = core.shown(done)
             after = core.info(done, np.zeros(done.size, dtype=np.int64))

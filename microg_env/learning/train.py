@@ -1,4 +1,4 @@
-"""``microg train``: stable-baselines3 on ``MicroGravityLanding-v1``, in rl-baselines3-zoo's layout.
+"""``microg train``: stable-baselines3 on a learning task, in rl-baselines3-zoo's layout.
 
 A run lives in ``<log folder>/<algo>/<env id>_<n>/``:
 
@@ -23,11 +23,13 @@ schedules (:data:`~microg_env.scenarios.VALIDATION_SAMPLER`, longer than the tra
 the training run's imperfections and randomisation, seeds from :data:`VALIDATION_SEED` (never a
 training or test seed); the cost is :func:`~microg_env.analysis.summary.selection_cost`, the PID
 tuner's with the mean excursion at the collision in place of the worst. A model evaluated before
-its first update (an off-policy algorithm before ``learning_starts``, PPO before its first rollout
-ends) is recorded but never the best: it has learned nothing. Every file is written
-atomically; ``latest.json`` is written after its checkpoint's files, so ``--resume`` always finds a
-complete one, and continues the step count, the normalisation statistics, the replay buffer, the
-best cost, the evaluation history and the wall-clock total. A session stopped after its last checkpoint
+its first update (an off-policy algorithm before ``learning_starts``) is recorded but never the
+best: it has learned nothing. PPO's policy changes only between rollouts, after the rollout's last
+step: its evaluation falls at the start of the rollout after the step it was due at, or at the
+run's end, so that it sees the update. Every file is written atomically; ``latest.json`` is written after its
+checkpoint's files, so ``--resume`` always finds a complete one, and continues the step count, the
+normalisation statistics, the replay buffer, the best cost, the evaluation history and the
+wall-clock total. A session stopped after its last checkpoint
 (killed) left evaluations, and maybe a best model, of steps a resume trains again: the resume drops
 them and puts back the best model of the evaluations it keeps, so every record is of one timeline.
 """
@@ -605,7 +607,15 @@ class _Run:
         if best is not None and base is not None:
             verdict = "; it beats" if best < base else "; it does NOT beat"
             verdict += f" {self._line_to_beat()[1]} ({base:.4g})"
-        best = "none (every evaluation failed)" if best is None else f"{best:.4g}"
+        if best is None:
+            why = (
+                "the run ended before its first update"
+                if not getattr(model, "_n_updates", 1)
+                else "every evaluation failed"
+            )
+            best = f"none ({why})"
+        else:
+            best = f"{best:.4g}"
         self.log(
             f"finished: {model.num_timesteps} steps in {self.wall_s():.1f} s wall over "
             f"{self.state['sessions']} session(s); best evaluation cost {best}{verdict}"
@@ -776,14 +786,23 @@ def _callback(run: _Run):
         def _on_training_start(self) -> None:
             self.next_eval = _next_multiple(self.num_timesteps, run.settings.eval_freq)
             self.next_checkpoint = _next_multiple(self.num_timesteps, run.settings.checkpoint_freq)
+            self.between_rollouts = run.params.algo == "ppo"  # PPO updates after a rollout's last step
+
+        def _evaluate_if_due(self) -> None:
+            if self.num_timesteps >= self.next_eval:
+                run.evaluate(self.model)
+                self.next_eval = _next_multiple(self.num_timesteps, run.settings.eval_freq)
+
+        def _on_rollout_start(self) -> None:
+            if self.between_rollouts:
+                self._evaluate_if_due()
 
         def _on_step(self) -> bool:
             steps = self.num_timesteps
             if run.progress is not None:
                 run.progress(steps, max(run.planned or run.params.n_timesteps, steps))
-            if steps >= self.next_eval:
-                run.evaluate(self.model)
-                self.next_eval = _next_multiple(steps, run.settings.eval_freq)
+            if not self.between_rollouts:
+                self._evaluate_if_due()
             if steps >= self.next_checkpoint:
                 run.checkpoint(self.model)
                 self.next_checkpoint = _next_multiple(steps, run.settings.checkpoint_freq)

@@ -17,7 +17,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
-from microg_env.envs.core import INFO_KEYS
+from microg_env.envs.core import INFO_KEYS, SCORE_KEY
 from microg_env.envs.vector import MicroGravityLandingVectorEnv
 
 
@@ -78,6 +78,11 @@ class BatchedVecEnv(VecEnv):
 
 
 def _per_rig(info: dict[str, Any]) -> list[dict[str, Any]]:
-    """Gymnasium's vector info (arrays over rigs) as one dictionary per rig, as SB3 expects."""
+    """Gymnasium's vector info (arrays over rigs) as one dictionary per rig, as SB3 expects: every
+    rig's state, and the normalised score of a rig whose episode ended (where its mask is set)."""
     columns: Sequence[list] = [info[key].tolist() for key in INFO_KEYS]
-    return [dict(zip(INFO_KEYS, values, strict=True)) for values in zip(*columns, strict=True)]
+    rigs = [dict(zip(INFO_KEYS, values, strict=True)) for values in zip(*columns, strict=True)]
+    if SCORE_KEY in info:
+        for i in np.flatnonzero(info[f"_{SCORE_KEY}"]):
+            rigs[i][SCORE_KEY] = float(info[SCORE_KEY][i])
+    return rigs

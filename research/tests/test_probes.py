@@ -23,7 +23,7 @@ def _probe_paths(monkeypatch):
     [
         ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
         ("fifty_gram_joint_fit", [], "| joint, relative | -7.08 |"),
-        ("plain_sb3", ["--seeds", "0", "--steps", "64", "--episodes", "1"], "| 0 | 64 | "),
+        ("plain_sb3", ["--seeds", "0", "--steps", "64", "--episodes", "1", "--zero"], "| zero action | | "),
         (
             "drive_scheme_held_out",
             ["--scenarios", "heavy-second", "--seeds", "1000", "--duration", "0.3"],

@@ -185,6 +185,8 @@ def _bad_cards():
     )
     for env_id in ["CartPole-v1", "MicroGravityLanding-v9", 1, None]:
         yield f"env_id {env_id!r}", json.dumps(card | {"env_id": env_id}), "env_id must be one of"
+    retired = "MicroGravityLanding-Residual-v5"  # a policy of 0.25.0 or before, trained on it
+    yield "env_id retired", json.dumps(card | {"env_id": retired}), f"env_id {retired} is retired: microg-env 0.25.0"
     for case, contradiction, key in _contradictions():
         # without action_mode the residual settings left make a speed task, which the task refuses first
         named = "only action_mode 'residual'" if key == "action_mode" else f"env_kwargs leaves out {key}"

@@ -542,7 +542,7 @@ def test_a_run_writes_every_artifact_of_the_zoos_layout(ppo_run):
     assert list((folder / "tb").rglob("events.out.tfevents.*"))
     config = yaml.safe_load((folder / "config.yml").read_text())
     assert hp.load("ppo", ENV_ID, folder / "config.yml").n_envs == 2  # itself a hyperparameter file
-    assert config[ENV_ID]["env_kwargs"]["base_controller"] == "feedforward"
+    assert config[ENV_ID]["env_kwargs"]["base_controller"] == "adaptive-dither"  # the id's keywords, in full
     evaluations = json.loads((folder / "evaluations.json").read_text())
     assert [row["timesteps"] for row in evaluations][:2] == [128, 256]
     for row in evaluations:  # the project's metrics, not only the return
@@ -809,8 +809,7 @@ def test_rl_zoo3_trains_from_the_same_hyperparameter_file(tmp_path):
     assert (run / f"{ENV_ID}.zip").is_file()
     assert (run / ENV_ID / "vecnormalize.pkl").is_file()
     config = (run / ENV_ID / "config.yml").read_text()
-    assert "feedforward" in config
-    assert "residual" in config
+    assert "log_std_init=-1.5" in config  # the entry's own keys
 
 
 @pytest.mark.slow
@@ -819,7 +818,7 @@ def test_the_cli_progress_bar_names_the_default_algorithm_and_ends_where_the_run
     that is not a whole number of rollouts overran the bar (200 steps asked, 256 run: '256step')."""
     from microg_env.cli import main
 
-    args = ["train", "--timesteps", "100", "--hyperparams", str(_tiny_hyperparams(tmp_path, "ppo"))]
+    args = ["train", "--env", ENV_ID, "--timesteps", "100", "--hyperparams", str(_tiny_hyperparams(tmp_path, "ppo"))]
     args += ["--log-folder", str(tmp_path / "logs"), "--eval-freq", "128", "--eval-episodes", "1"]
     assert main(args) == 0
     out, err = capsys.readouterr()
@@ -1222,7 +1221,8 @@ def test_a_run_killed_in_its_final_evaluation_is_finished_by_a_resume(tmp_path):
     command line's Ctrl-C, tests/rollout/test_processes.py; a Ctrl-C in that evaluation is
     test_a_run_stopped_in_its_final_evaluation_is_finished_by_a_resume.)"""
     logs = tmp_path / "logs"
-    command = [sys.executable, "-m", "microg_env.cli", "train", "-conf", str(_tiny_hyperparams(tmp_path, "ppo"))]
+    command = [sys.executable, "-m", "microg_env.cli", "train", "--env", ENV_ID]
+    command += ["-conf", str(_tiny_hyperparams(tmp_path, "ppo"))]
     command += ["--timesteps", "128", "--eval-freq", "100000", "--eval-episodes", "1", "--checkpoint-freq", "100000"]
     command += ["--log-folder", str(logs), "--quiet"]
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

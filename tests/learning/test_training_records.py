@@ -272,6 +272,28 @@ def test_a_model_evaluated_before_its_first_update_is_never_the_best(tmp_path, c
     assert "(before its first update: never the best)" in (folder / "train.log").read_text()
 
 
+def test_ppo_is_evaluated_after_the_update_that_ends_its_rollout(tmp_path, costs):
+    """One rollout of 2 x 32 steps, evaluations due at 32 and 64 steps: PPO's policy changes only
+    after the rollout, so one evaluation runs, at the run's end, of the updated model, the run's
+    best (with the rule against untrained bests alone, both ran inside the rollout, before the
+    update, and the run ended without a policy)."""
+    conf = _conf(tmp_path, "ppo", n_envs=2, n_steps=32, batch_size=64)
+    costs.table = {32: 0.5, 64: 0.4}
+    folder = train(_settings(tmp_path, "ppo", conf, eval_freq=32, timesteps=64), progress=costs.progress)
+    assert _rows(folder) == [(64, True, 0.4)]
+    assert _card(folder)["timesteps"] == 64
+    assert "best evaluation cost 0.4" in (folder / "train.log").read_text().splitlines()[-1]
+
+
+def test_a_run_that_ends_before_its_first_update_says_so(tmp_path, costs):
+    """SAC stopped at 64 steps, before learning_starts: no best model, and the log says why."""
+    conf = _conf(tmp_path, "sac", learning_starts=100)
+    folder = train(_settings(tmp_path, "sac", conf, timesteps=64), progress=costs.progress)
+    assert not (folder / "policy").exists()
+    last = (folder / "train.log").read_text().splitlines()[-1]
+    assert "best evaluation cost none (the run ended before its first update)" in last
+
+
 @pytest.fixture(scope="module")
 def killed_run(tmp_path_factory):
     """A PPO run evaluated every 64 steps, checkpointed every 128, killed after its evaluation at
@@ -285,7 +307,7 @@ def killed_run(tmp_path_factory):
             train(_run_settings(tmp_path, 256), progress=costs.progress)
     folder = tmp_path / "logs" / "ppo" / f"{ENV_ID}_1"
     assert json.loads((folder / "checkpoints" / "latest.json").read_text())["timesteps"] == 128
-    assert _rows(folder) == [(64, False, 0.5), (128, True, 0.4), (192, True, 0.1)]  # 64: before its first update
+    assert _rows(folder) == [(64, True, 0.5), (128, True, 0.4), (192, True, 0.1)]
     assert _card(folder)["timesteps"] == 192  # the discarded session's best is the one on disk
     return tmp_path, folder
 
@@ -320,7 +342,7 @@ def test_a_resume_drops_the_killed_sessions_evaluations_and_puts_back_the_best_m
     """The resumed session evaluates 192 again and never beats 128's cost: the killed session's 192
     (cost 0.1) used to stay in evaluations.json beside the new 192, and its model stayed the best."""
     folder = _resume(killed_run, tmp_path, costs, {192: 0.45, 256: 0.42})
-    assert _rows(folder) == [(64, False, 0.5), (128, True, 0.4), (192, False, 0.45), (256, False, 0.42)]
+    assert _rows(folder) == [(64, True, 0.5), (128, True, 0.4), (192, False, 0.45), (256, False, 0.42)]
     card = _card(folder)
     assert (card["timesteps"], card["validation"]["cost"]) == (128, 0.4)
     assert (folder / "best_model.zip").read_bytes() == (folder / "policy" / "model.zip").read_bytes()
@@ -333,7 +355,7 @@ def test_a_resume_drops_the_killed_sessions_evaluations_and_puts_back_the_best_m
 def test_a_resume_leaves_one_evaluation_per_step_and_one_best_timeline(killed_run, tmp_path, costs):
     """The resumed session's 192 beats everything: two rows of step 192, both best, used to follow."""
     folder = _resume(killed_run, tmp_path, costs, {192: 0.05, 256: 0.3})
-    assert _rows(folder) == [(64, False, 0.5), (128, True, 0.4), (192, True, 0.05), (256, False, 0.3)]
+    assert _rows(folder) == [(64, True, 0.5), (128, True, 0.4), (192, True, 0.05), (256, False, 0.3)]
     card = _card(folder)
     assert (card["timesteps"], card["validation"]["cost"]) == (192, 0.05)
     assert card["resume_commands"] == ["pytest"]  # the resumed session's model, not the killed one's
