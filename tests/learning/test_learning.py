@@ -1265,6 +1265,17 @@ def test_an_entry_is_checked_on_as_many_environments_as_the_run_steps(tmp_path):
         resolve(TrainSettings(env_id=ENV_ID, hyperparams=str(path)))
 
 
+@pytest.mark.parametrize("algo", hp.ALGORITHMS)
+def test_every_algorithm_trains_the_default_task_as_registered_with_no_env_given(algo):
+    """microg train --algo ALGO with no --env: the command task, from its packaged entry, whose
+    env_kwargs are the id's registered ones (tqc.yml and crossq.yml had no entry for it)."""
+    from microg_env.learning.settings import ENV_IDS
+
+    params = resolve(TrainSettings(algo=algo))
+    assert params.env_id == ENV_IDS[0] == "MicroGravityLanding-Command-v1"
+    assert params.env_kwargs == gym.spec(params.env_id).kwargs
+
+
 @pytest.mark.parametrize(("algo", "kwargs"), [("ppo", {"n_steps": 48, "batch_size": 32}), ("sac", {"train_freq": 64})])
 def test_planned_steps_agrees_with_stable_baselines3_itself(algo, kwargs):
     """The rule, held against the library on a small standard env (2 envs, 100 steps asked)."""
