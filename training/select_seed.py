@@ -27,7 +27,7 @@ from microg_env.controllers.registry import load_policy, policy_card
 from microg_env.experiments.comparison import TEST_SEED
 from microg_env.interface import SENSOR_SETS
 from microg_env.learning.train import VALIDATION_SEED, validation_runs, validation_settings
-from microg_env.task import TaskSettings
+from microg_env.task import ActingSettings, TaskSettings
 
 #: How many validation episodes, from VALIDATION_SEED, choose the seed unless told.
 EPISODES = 200
@@ -68,7 +68,7 @@ def main(argv: list[str]) -> int:
     settings = validation_settings(task)
     period = TaskSettings(**settings).control_period_s
     seeds = range(VALIDATION_SEED, VALIDATION_SEED + args.episodes)
-    mode = task.get("action_mode", "speed")
+    mode = ActingSettings.of(task).action_mode
     if mode == "speed":  # no base: the paper's PID is the line
         zero, first = "pid", ("pid (the paper's)", "pid")
     else:

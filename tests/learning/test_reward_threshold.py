@@ -20,7 +20,7 @@ from microg_env.controllers.registry import check_policy_folder, make_controller
 from microg_env.envs.period import x_reward
 from microg_env.interface import MAX_SPEED_M_S
 from microg_env.scores import REFERENCES
-from microg_env.task import TaskSettings
+from microg_env.task import ActingSettings, TaskSettings
 
 #: The draws each threshold is the mean return over: seeds 1000-1099 (training/returns_table.py).
 FIRST_SEED, RIGS = 1000, 100
@@ -40,9 +40,8 @@ def _reference_runs(env_id: str, seeds: list[int]) -> tuple[list[np.ndarray], fl
     gains action is its base controller however often it acts; the command id's PID runs at the
     drive's own action unit, every entry shown (neither changes the draws or the physics): so the
     trajectories are the id's own."""
-    kwargs = gym.spec(env_id).kwargs
-    period = kwargs.get("decision_period", 1)
-    speed = kwargs.get("action_mode", "speed") == "speed"
+    registered = ActingSettings.of(gym.spec(env_id).kwargs)
+    period, speed = registered.decision_period, registered.action_mode == "speed"
     acting = {"speed_limit_m_s": MAX_SPEED_M_S, "hidden_observations": ()} if speed else {"decision_period": 1}
     rigs = len(seeds)
     vector = gym.make_vec(env_id, num_envs=rigs, vectorization_mode="vector_entry_point", **acting)
