@@ -48,9 +48,9 @@ class PartialOracle(Feedforward):
         super().__init__(control_period_s)
         self.columns = [PLANT_FIELDS.index(name) for name in told]
 
-    def know_plants(self, ids: np.ndarray, plants: list) -> None:
+    def know_plants(self, ids: np.ndarray, plants: list, ideal_drive: bool = False) -> None:
         for i, params in zip(ids, plants, strict=True):
-            self._plant[i, self.columns] = plant_model(params)[self.columns]
+            self._plant[i, self.columns] = plant_model(params, ideal_drive)[self.columns]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -165,7 +165,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     if args.out is not None:
         comparison_report.figure_class()  # fail now, not after the runs, if matplotlib is missing
         comparison_report.check_output(args.out)
-    total = len(controllers) * len(scenarios) * args.seeds
+    total = (len(controllers) + (len(comparison.FLOORS) if args.floor else 0)) * len(scenarios) * args.seeds
     with progress_bar("compare", args.quiet, total, unit="episode") as bar:
         result = comparison.compare(
             controllers,
@@ -179,6 +179,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             overrides=overrides,
             workers=args.workers,
             progress=bar.update,
+            floor=args.floor,
         ).relabelled(labels)
     if args.json:
         print(json.dumps(result.as_dict(), indent=2))
@@ -328,6 +329,13 @@ def add_commands(commands) -> None:
         metavar="NAME",
         help="pair every other controller against this one (ratio with a 95 %% interval resampling seeds, wins, "
         "sign test)",
+    )
+    compare.add_argument(
+        "--no-floor",
+        dest="floor",
+        action="store_false",
+        help="leave out the floor bracket: the oracle on the same episodes with an ideal drive and with no cogging "
+        "or friction (default: run it, two rows more)",
     )
     add_duration_option(compare, "cap on each episode's simulated time (default: the scenario's)")
     compare.add_argument(

@@ -5,7 +5,11 @@ simulator's state. Two layers, both in the one speed command the drive accepts:
 
 1. **The lander's motion, fed forward.** The lander's acceleration follows from the forces the
    sensors show, a = (F_pad - m g - k x) / (M + m) (Eq. 1 with the pad force measured, the test
-   weights m known to the operator, the QZS's residual force -k x of Eq. 17, nominal M and k). Its
+   weights m known to the operator, the QZS's residual force -k x of Eq. 17, nominal M and k).
+   With ``pad_model`` a rig without the pad force sensor (its reading exactly 0 N; a real one
+   carries 0.1 N RMS of noise) takes F_pad from the pad's spring-damper, Eq. (1)'s K d + D d' at
+   the foot's depth d below touchdown (the height the encoder and ruler give) and its rate, never
+   pulling (the paper's sensors: Section 4.1's rig reads the encoder and the ruler only). Its
    velocity is that acceleration integrated and pulled towards the measured one (encoder speed
    plus ruler rate) with a gain ``velocity_observer_gain`` per control period; the command is that
    velocity one control period ahead (the command's delay) plus the PID on x. The integral no
@@ -52,8 +56,8 @@ from microg_env.params import RigParams
 from microg_env.sim.model import drive_inertia_kg_m2, flexible_unit, speed_loop_gains
 
 #: Observation columns the feed-forward reads beyond the PID's.
-SUPPORT_POSITION, SUPPORT_VELOCITY, PAD_FORCE, PLACED_LOAD = (
-    OBSERVATION_INDEX[name] for name in ("support_position", "support_velocity", "pad_force", "placed_load")
+SUPPORT_POSITION, SUPPORT_VELOCITY, PAD_FORCE, HEIGHT, PLACED_LOAD = (
+    OBSERVATION_INDEX[name] for name in ("support_position", "support_velocity", "pad_force", "height", "placed_load")
 )
 #: Pad-force readings below this are taken as no contact (the sensor's noise is 0.1 N RMS), N.
 CONTACT_THRESHOLD_N = 0.5
@@ -81,27 +85,37 @@ class FeedforwardSettings:
 PLANT_FIELDS = (
     "mass", "gravity", "x_stiffness", "support_stiffness", "viscous", "gear", "kp_speed", "kd_speed", "inertia",
     "cogging", "cogging_cycles", "cogging_phase", "bristle_stiffness", "bristle_damping", "coulomb", "static",
-    "stribeck_speed",
+    "stribeck_speed", "pad_stiffness", "pad_damping",
 )  # fmt: skip
 
 
 GEAR = PLANT_FIELDS.index("gear")
 
 
-def plant_model(params: RigParams) -> np.ndarray:
-    """The feed-forward's model of the rig ``params`` (:data:`PLANT_FIELDS`, SI)."""
+#: The entries of a plant model that ask the drive for torque: an ideal drive (a speed source)
+#: needs none, and its model holds them at 0 (:func:`plant_model`).
+DRIVE_TORQUE_FIELDS = ("support_stiffness", "viscous", "inertia", "cogging", "bristle_stiffness")
+
+
+def plant_model(params: RigParams, ideal_drive: bool = False) -> np.ndarray:
+    """The feed-forward's model of the rig ``params`` (:data:`PLANT_FIELDS`, SI); with
+    ``ideal_drive`` (a speed source) the :data:`DRIVE_TORQUE_FIELDS` are 0, so it asks for no torque."""
     screw, servo = params.screw, params.servo
     unit = flexible_unit(params)
-    return np.array(
+    model = np.array(
         [
             params.lander.mass_kg, params.gravity_m_s2, unit.x_stiffness_n_per_m,
             unit.balancer_stiffness_n_per_m if params.balancer.placement == "frame_support" else 0.0,
             screw.viscous_n_s_per_m, screw.gear_rad_per_m, *speed_loop_gains(params), drive_inertia_kg_m2(params),
             servo.cogging_torque_n_m, float(servo.cogging_cycles_per_rev), servo.cogging_phase_rad,
             servo.bristle_stiffness_n_m_per_rad, servo.bristle_damping_n_m_s_per_rad, servo.coulomb_torque_n_m,
-            servo.static_torque_n_m, servo.stribeck_speed_rad_s,
+            servo.static_torque_n_m, servo.stribeck_speed_rad_s, params.pad.stiffness_n_per_m,
+            params.pad.damping_n_s_per_m,
         ]
     )  # fmt: skip
+    if ideal_drive:
+        model[[PLANT_FIELDS.index(name) for name in DRIVE_TORQUE_FIELDS]] = 0.0
+    return model
 
 
 class Feedforward(VectorController):
@@ -120,6 +134,7 @@ class Feedforward(VectorController):
         params: RigParams | None = None,
         settings: FeedforwardSettings | None = None,
         gains: PIDGains | None = None,
+        pad_model: bool = False,
     ) -> None:
         self.pid = PID(load_gains("pid") if gains is None else gains, control_period_s)  # the feedback loop
         super().__init__(self.pid)
@@ -129,7 +144,9 @@ class Feedforward(VectorController):
         self.nominal = plant_model(RigParams() if params is None else params)
         self._plant = self.nominal[None].copy()
         #: The feed-forward's settings, in the order :func:`feedforward_actions` takes them.
-        self.constants = (control_period_s, self.settings.velocity_observer_gain, self.settings.prediction_horizon_s)
+        self.constants = (
+            control_period_s, self.settings.velocity_observer_gain, self.settings.prediction_horizon_s, pad_model
+        )  # fmt: skip
 
     def grow(self, count: int) -> None:
         if count > self.size:
@@ -152,9 +169,13 @@ class Feedforward(VectorController):
 class Oracle(Feedforward):
     """The feed-forward given each episode's true plant (lander, pad, friction, drive), not the
     nominal one: not deployable (no operator knows the plant), a reference point for what knowing
-    the plant is worth to this controller's structure, not a bound on any controller's. The
+    the plant is worth to this controller's structure, not a bound on any controller's. On a rig
+    without the pad force sensor it takes the force from the true pad (``pad_model``). The
     harness tells it the plant at every reset (:meth:`know_plants`); it refuses to act on a rig
     whose plant it was not told."""
+
+    def __init__(self, control_period_s: float, params: RigParams | None = None, gains: PIDGains | None = None) -> None:
+        super().__init__(control_period_s, params, gains=gains, pad_model=True)
 
     def reset(self, ids: np.ndarray | None = None) -> None:
         super().reset(ids)
@@ -165,12 +186,12 @@ class Oracle(Feedforward):
         super().grow(count)
         self._plant[start:] = math.nan
 
-    def know_plants(self, ids: np.ndarray, plants: list[RigParams]) -> None:
-        """Rigs ``ids`` run on ``plants`` this episode."""
+    def know_plants(self, ids: np.ndarray, plants: list[RigParams], ideal_drive: bool = False) -> None:
+        """Rigs ``ids`` run on ``plants`` this episode, with an ideal drive (a speed source) or not."""
         ids = np.asarray(ids, dtype=np.int64)
         self.grow(int(ids.max(initial=-1)) + 1)
         for i, params in zip(ids, plants, strict=True):
-            self._plant[i] = plant_model(params)
+            self._plant[i] = plant_model(params, ideal_drive)
 
     def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
         unknown = ids[np.isnan(self._plant[ids, 0])]
@@ -184,11 +205,12 @@ class Oracle(Feedforward):
 
 @jit
 def feedforward_actions(
-    rows, ids, scales, start, velocity, reference_offset, bristle, plant, period, observer_gain, horizon, out, loop
+    rows, ids, scales, start, velocity, reference_offset, bristle, plant, period, observer_gain, horizon, pad_model,
+    out, loop,
 ):  # fmt: skip
     """The feed-forward's actions (command / max_speed) for observations ``rows`` of rigs ``ids``,
-    into ``out``; ``plant``: each rig's model (rows of :func:`plant_model`); ``loop``: its PID's
-    (:meth:`PID.loop`)."""
+    into ``out``; ``plant``: each rig's model (rows of :func:`plant_model`); ``pad_model``: the pad
+    force from the pad's model where the rig reads none; ``loop``: its PID's (:meth:`PID.loop`)."""
     max_speed = loop[LOOP_MAX_SPEED]
     for j in range(ids.size):
         i = ids[j]
@@ -199,6 +221,7 @@ def feedforward_actions(
         bristle_stiffness, bristle_damping, coulomb, static, stribeck_speed = (
             model[12], model[13], model[14], model[15], model[16]
         )  # fmt: skip
+        pad_stiffness, pad_damping = model[17], model[18]
         x = rows[j, X] * scales[X]
         x_rate = rows[j, X_RATE] * scales[X_RATE]
         position = rows[j, SUPPORT_POSITION] * scales[SUPPORT_POSITION]
@@ -209,7 +232,11 @@ def feedforward_actions(
             start[i] = position
             velocity[i] = support_velocity + x_rate
         # 1. The lander's motion (Eq. 1 with the pad force measured), fed forward one period ahead.
-        force = pad_force if pad_force > CONTACT_THRESHOLD_N else 0.0
+        if pad_model and pad_force == 0.0:  # no pad force sensor: Eq. (1)'s spring-damper at the measured foot
+            depth = -rows[j, HEIGHT] * scales[HEIGHT]
+            force = max(pad_stiffness * depth - pad_damping * (support_velocity + x_rate), 0.0) if depth > 0 else 0.0
+        else:
+            force = pad_force if pad_force > CONTACT_THRESHOLD_N else 0.0
         accel = (force - placed * gravity - x_stiffness * x) / (mass + placed)
         estimate = velocity[i] + accel * period
         estimate += observer_gain * (support_velocity + x_rate - estimate)
@@ -273,8 +300,14 @@ class AdaptiveFeedforward(Feedforward):
         "_slow": 0.0,  # eps low-passed at high_pass_hz (eps minus it is the part the cogging moves), rad
     }
 
-    def __init__(self, control_period_s: float, params: RigParams | None = None, gains: PIDGains | None = None) -> None:
-        super().__init__(control_period_s, params, gains=gains)
+    def __init__(
+        self,
+        control_period_s: float,
+        params: RigParams | None = None,
+        gains: PIDGains | None = None,
+        pad_model: bool = False,
+    ) -> None:
+        super().__init__(control_period_s, params, gains=gains, pad_model=pad_model)
         params = RigParams() if params is None else params
         self.adaptive = AdaptiveSettings.load()
         #: The adaptation's constants, in the order :func:`adapt_cogging` takes them.
@@ -341,8 +374,9 @@ class DitheredAdaptiveFeedforward(AdaptiveFeedforward):
         params: RigParams | None = None,
         gains: PIDGains | None = None,
         dither: DitherSettings | None = None,
+        pad_model: bool = False,
     ) -> None:
-        super().__init__(control_period_s, params, gains=gains)
+        super().__init__(control_period_s, params, gains=gains, pad_model=pad_model)
         self.dither = DitherSettings.load() if dither is None else dither
         if self.dither.period_s < 2 * control_period_s:
             raise ValueError(

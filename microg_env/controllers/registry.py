@@ -48,6 +48,7 @@ FEEDFORWARDS = {
     "feedforward": Feedforward,
     "adaptive": AdaptiveFeedforward,
     "adaptive-dither": DitheredAdaptiveFeedforward,
+    "adaptive-dither-pad": functools.partial(DitheredAdaptiveFeedforward, pad_model=True),
     "oracle": Oracle,
 }
 #: Most bytes a policy card may hold.

@@ -372,7 +372,8 @@ class LandingCore:
         self._noise.restart(ids)
         if self.base is not None:
             self.base.reset(ids)
-            tell_plants(self.base, ids, [self.episodes[i].params for i in ids])  # an oracle base knows them
+            # an oracle base knows them
+            tell_plants(self.base, ids, [self.episodes[i].params for i in ids], self.rig.ideal_drive)
         self._place_due_loads(ids, self.trim_height_m[ids])
         physics.forward(ids)
         self._observe(ids, rngs)

@@ -38,6 +38,19 @@ from microg_env.trajectory import Trajectory
 
 #: The window of x kept for the figure, s before and after the first touchdown.
 X_WINDOW_S = (-1.0, 3.0)
+#: The floor bracket beside every comparison (#46): the ``oracle`` (told each episode's plant) on the
+#: same episode with parts of the drive made ideal, so each controller reads against what the
+#: physics leaves rather than against one controller's structure. ``floor-ideal-drive``: the drive
+#: a speed source that follows its reference exactly (no speed loop, torque filter, torque limit,
+#: cogging or motor friction); ``floor-no-cogging-friction``: the drive as assumed without its
+#: cogging and without friction (the motor's, the screw's and the QZS guide's). The control delay,
+#: the sensors' noise and the rest of the plant stay. Imperfections switched off, by floor.
+FLOORS: dict[str, dict[str, bool]] = {
+    "floor-ideal-drive": {"servo_lag": False},
+    "floor-no-cogging-friction": {"cogging": False, "friction": False},
+}
+#: The controller each floor runs.
+FLOOR_CONTROLLER = "oracle"
 
 
 @dataclass(frozen=True)
@@ -124,6 +137,13 @@ class Comparison:
     #: The rig's parameters that differ from the paper's, by dotted path (``microg compare --rig``).
     overrides: dict[str, Any] = field(default_factory=dict)
     physics_step_s: float = PHYSICS_STEP_S
+    #: The floors run beside the controllers (:data:`FLOORS`), each a row of its own.
+    floors: tuple[str, ...] = ()
+
+    @property
+    def rows(self) -> tuple[str, ...]:
+        """What the tables show, each paired with the reference: the controllers, then the floors."""
+        return self.controllers + self.floors
 
     def relabelled(self, labels: Mapping[str, str]) -> Comparison:
         """This comparison with each controller run as one of ``labels``' values shown under its key
@@ -216,15 +236,16 @@ class Comparison:
             "quantities": {
                 name: {"label": q.label, "si_unit_times": q.scale, "unit": q.unit} for name, q in QUANTITIES.items()
             },
-            "summary": {c: summaries(c, None) for c in self.controllers},
-            "per_scenario": {c: {s: summaries(c, s) for s in self.scenarios} for c in self.controllers},
+            "floors": {name: {"controller": FLOOR_CONTROLLER, "imperfections": FLOORS[name]} for name in self.floors},
+            "summary": {c: summaries(c, None) for c in self.rows},
+            "per_scenario": {c: {s: summaries(c, s) for s in self.scenarios} for c in self.rows},
             "reference": self.reference,
             "sensor_set": self.sensor_set,
             "overrides": self.overrides,
             "labels": self.labels,
             "paired": {
                 c: {name: self.paired(c, name).as_dict() for name in QUANTITIES}
-                for c in self.controllers
+                for c in self.rows
                 if self.reference is not None and c != self.reference
             },
             "cases": [
@@ -274,12 +295,14 @@ def compare(
     sensor_set: str = "extended",
     overrides: Mapping[str, Any] | None = None,
     physics_step_s: float = PHYSICS_STEP_S,
+    floor: bool = True,
 ) -> Comparison:
     """Run every controller on every scenario and seed; ``progress(fraction)`` as episodes advance;
     ``reference``: one of ``controllers``, the others paired against it; ``sensor_set``: the rig's
     sensors ("paper": no pad force, no accelerometer); ``overrides``: the rig's parameters by dotted
     path (a rig file's), which every controller's model assumes too; ``physics_step_s``: the
-    physics step (``benchmarks/convergence_comparison.py`` runs a comparison at two)."""
+    physics step (``benchmarks/convergence_comparison.py`` runs a comparison at two); ``floor``:
+    the floor bracket (:data:`FLOORS`) on the same episodes."""
     known = comparison_scenarios()
     names = tuple(known) if scenarios is None else tuple(scenarios)
     for name in names:
@@ -303,7 +326,8 @@ def compare(
     validate.integer("seeds", seeds, 1, MAX_SEEDS)
     workers = validate.integer("workers", workers, 1, MAX_WORKERS)
     seed_lists = {name: scenario_seeds(name, first_seed, seeds) for name in names}
-    cases = [Case(c, s, seed) for s in names for seed in seed_lists[s] for c in controllers]
+    floors = tuple(FLOORS) if floor else ()
+    cases = [Case(c, s, seed) for s in names for seed in seed_lists[s] for c in (*controllers, *floors)]
     comparison = Comparison(
         tuple(controllers),
         {s: known[s] for s in names},
@@ -315,6 +339,7 @@ def compare(
         sensor_set=sensor_set,
         overrides=dict(RunSpec(overrides=overrides or {}).overrides),  # checked, a default's value dropped
         physics_step_s=physics_step_s,
+        floors=floors,
     )
     specs = []
     for case in cases:
@@ -324,8 +349,9 @@ def compare(
         specs.append(
             RunSpec(
                 case.scenario,
-                case.controller,
+                FLOOR_CONTROLLER if case.controller in FLOORS else case.controller,
                 case.seed,
+                imperfections=FLOORS.get(case.controller, {}),
                 randomize=randomize,
                 control_period_us=control_period_s * 1e6,
                 duration_s=length,

@@ -42,6 +42,13 @@ def _summary_cell(c: Comparison, controller: str, name: str, scenario: str | Non
     )
 
 
+#: What the floor rows are (:data:`~microg_env.experiments.comparison.FLOORS`), in words.
+FLOOR_TEXT = (
+    "The floor rows are references, not controllers: `oracle`, told each episode's plant, on the same episode "
+    "with the drive a perfect speed source (`floor-ideal-drive`) or without cogging and friction "
+    "(`floor-no-cogging-friction`); the control delay and the sensors' noise stay. They bracket what the "
+    "physics leaves to any controller that reads these sensors."
+)
 #: The sensor sets in words.
 SENSORS = {
     "extended": "every sensor (grating ruler, encoder, pad force, accelerometer)",
@@ -97,6 +104,8 @@ def render_markdown(c: Comparison) -> str:
             f"- `{name}`: {scenario.loads_text}; from {scenario.descent_height_m * 1e3:g} mm; {duration:g} s; "
             f"seeds {seeds[0]}-{seeds[-1]}"
         )
+    if c.floors:
+        lines += ["", FLOOR_TEXT]
     lines += [
         "",
         "Mean ± std (worst) over every scenario and seed; failures are episodes ended at a stroke limit.",
@@ -104,10 +113,10 @@ def render_markdown(c: Comparison) -> str:
         "| controller | " + " | ".join(f"{q.label} [{q.unit}]" for q in QUANTITIES.values()) + " | failures |",
         "|---|" + "---|" * (len(QUANTITIES) + 1),
     ]
-    for controller in c.controllers:
+    for controller in c.rows:
         cells = [_summary_cell(c, controller, name) for name in QUANTITIES]
         lines.append(f"| {controller} | " + " | ".join(cells) + f" | {c.failure_rate(controller):.0%} |")
-    if BASELINE in c.controllers and len(c.controllers) > 1:
+    if BASELINE in c.controllers and len(c.rows) > 1:
         lines += [
             "",
             f"Mean of each metric relative to `{BASELINE}`'s (below 1 is better):",
@@ -115,7 +124,7 @@ def render_markdown(c: Comparison) -> str:
             "| controller | " + " | ".join(q.label for q in QUANTITIES.values()) + " |",
             "|---|" + "---|" * len(QUANTITIES),
         ]
-        for controller in c.controllers:
+        for controller in c.rows:
             if controller == BASELINE:
                 continue
             ratios = []
@@ -124,7 +133,7 @@ def render_markdown(c: Comparison) -> str:
                 ratio = mine / theirs if theirs else math.nan
                 ratios.append(format_number(ratio, ".3g"))
             lines.append(f"| {controller} | " + " | ".join(ratios) + " |")
-    if c.reference is not None and len(c.controllers) > 1:
+    if c.reference is not None and len(c.rows) > 1:
         lines += [
             "",
             f"Paired against `{c.reference}` on the same scenarios and seeds: ratio of means [95 % interval, "
@@ -133,11 +142,11 @@ def render_markdown(c: Comparison) -> str:
             "| controller | " + " | ".join(q.label for q in QUANTITIES.values()) + " |",
             "|---|" + "---|" * len(QUANTITIES),
         ]
-        for controller in c.controllers:
+        for controller in c.rows:
             if controller != c.reference:
                 cells = [_paired_cell(c.paired(controller, name)) for name in QUANTITIES]
                 lines.append(f"| {controller} | " + " | ".join(cells) + " |")
-    if c.reference is not None and len(c.controllers) > 1 and len(c.scenarios) > 1:
+    if c.reference is not None and len(c.rows) > 1 and len(c.scenarios) > 1:
         quantity = QUANTITIES["collision_excursion_m"]
         lines += [
             "",
@@ -147,7 +156,7 @@ def render_markdown(c: Comparison) -> str:
             "| controller | " + " | ".join(f"`{s}`" for s in c.scenarios) + " |",
             "|---|" + "---|" * len(c.scenarios),
         ]
-        for controller in c.controllers:
+        for controller in c.rows:
             if controller != c.reference:
                 cells = [_ratio_cell(c.paired(controller, "collision_excursion_m", scenario=s)) for s in c.scenarios]
                 lines.append(f"| {controller} | " + " | ".join(cells) + " |")
@@ -160,7 +169,7 @@ def render_markdown(c: Comparison) -> str:
             "| controller | " + " | ".join(f"`{s}`" for s in c.scenarios) + " |",
             "|---|" + "---|" * len(c.scenarios),
         ]
-        for controller in c.controllers:
+        for controller in c.rows:
             cells = [_summary_cell(c, controller, name, s) for s in c.scenarios]
             lines.append(f"| {controller} | " + " | ".join(cells) + " |")
     lines += [
@@ -217,7 +226,7 @@ def render_figures(c: Comparison) -> dict[str, object]:
     landing = figure_type(figsize=(9, 2.4 * n), layout="constrained")
     axes = np.atleast_1d(landing.subplots(n, 1, sharex=True))
     for ax, scenario in zip(axes, c.scenarios, strict=True):
-        for i, controller in enumerate(c.controllers):
+        for i, controller in enumerate(c.rows):
             for result in c.runs(controller, scenario):
                 if result.x_window is not None:
                     edges, peaks = windowed_peak(*result.x_window)
@@ -259,7 +268,7 @@ def paired_figure(c: Comparison, size: tuple[float, float] | None = None):
     the same episodes, with its 95 % interval resampling seeds (:mod:`microg_env.analysis.paired`),
     on a linear axis with the reference's 1 marked."""
     reference = plot_reference(c)
-    others = [name for name in c.controllers if name != reference]
+    others = [name for name in c.rows if name != reference]
     height = 1.3 + 0.4 * max(len(others), 1)
     columns = math.ceil(len(QUANTITIES) / 2)
     figure = figure_class()(figsize=size or (3.4 * columns, 2 * height), layout="constrained")
@@ -273,7 +282,7 @@ def paired_figure(c: Comparison, size: tuple[float, float] | None = None):
         left = low * 0.9 if low > 0.5 else 0.0  # from 0 unless every interval is close to 1
         right = max([1.0, *shown]) * 1.1
         for row, p in found:
-            color = f"C{c.controllers.index(others[row])}"
+            color = f"C{c.rows.index(others[row])}"
             if p.ratio > right:  # off the scale: an arrow at the edge and the value
                 ax.plot(right, row, ">", color=color, ms=7)
                 ax.annotate(f"{p.ratio:.3g}×", (right, row), xytext=(-6, 5), textcoords="offset points", ha="right")

@@ -8,7 +8,13 @@ import pytest
 
 from microg_env.controllers import BASELINES, PID, PIDGains, PolicyController, load_gains, make_controller
 from microg_env.controllers.base import tell_plants
-from microg_env.controllers.feedforward import DitheredAdaptiveFeedforward, DitherSettings
+from microg_env.controllers.feedforward import (
+    DRIVE_TORQUE_FIELDS,
+    PLANT_FIELDS,
+    DitheredAdaptiveFeedforward,
+    DitherSettings,
+    plant_model,
+)
 from microg_env.envs.landing import MicroGravityLandingEnv
 from microg_env.imperfections import DomainRandomization
 from microg_env.interface import OBSERVATION_INDEX, OBSERVATION_SCALES
@@ -187,6 +193,61 @@ def test_the_oracle_is_the_feedforward_on_the_nominal_plant_and_far_better_on_a_
         }
         excursion = {n: each.flexible_unit_excursion_collision_m for n, each in metrics.items()}
         assert excursion["oracle"] * 3 < excursion["feedforward"], (seed, excursion)
+
+
+def _pad_row(height_m: float, rate_m_s: float, pad_force_n: float) -> np.ndarray:
+    """An observation of the foot ``height_m`` above touchdown, moving at ``rate_m_s`` (the support's
+    speed; x still), with the pad force sensor reading ``pad_force_n``."""
+    obs = _observation(support_velocity=rate_m_s)
+    obs[OBSERVATION_INDEX["height"]] = height_m / OBSERVATION_SCALES["height"]
+    obs[OBSERVATION_INDEX["support_position"]] = (0.01 + height_m) / OBSERVATION_SCALES["support_position"]
+    obs[OBSERVATION_INDEX["pad_force"]] = pad_force_n / OBSERVATION_SCALES["pad_force"]
+    return obs
+
+
+def _first_action(name: str, observation: np.ndarray) -> float:
+    controller = make_controller(name, 2e-3)
+    controller.reset()
+    return float(controller(observation)[0])
+
+
+def test_the_pad_model_gives_eq_1s_force_where_the_rig_reads_none():
+    """``adaptive-dither-pad`` where the pad force reads exactly 0 acts as ``adaptive-dither`` shown
+    Eq. (1)'s K d + D d' (Table 1's K, D) at the measured depth and rate; shown a reading, it acts as
+    the dither; above the pad, or leaving it faster than the spring pushes, the force is 0."""
+    pad = RigParams().pad
+    depth, rate = 2e-3, -10e-3  # 2 mm into the pad, the foot still sinking at 10 mm/s
+    force = pad.stiffness_n_per_m * depth - pad.damping_n_s_per_m * rate
+    modelled = _first_action("adaptive-dither-pad", _pad_row(-depth, rate, 0.0))
+    assert modelled == pytest.approx(_first_action("adaptive-dither", _pad_row(-depth, rate, force)), rel=1e-6)
+    assert modelled != _first_action("adaptive-dither", _pad_row(-depth, rate, 0.0))
+    read = _pad_row(-depth, rate, 3.0)
+    assert _first_action("adaptive-dither-pad", read) == _first_action("adaptive-dither", read)
+    for height, speed in ((1e-3, -10e-3), (-1e-4, 0.5)):  # above the pad; a 0.1 mm contact left at 0.5 m/s
+        row = _pad_row(height, speed, 0.0)
+        assert _first_action("adaptive-dither-pad", row) == _first_action("adaptive-dither", row)
+
+
+def test_the_oracle_reads_the_true_pad_where_the_rig_has_no_force_sensor():
+    """On the paper's sensors the oracle takes the pad force from the episode's true pad: its x at the
+    collision is within 5 % of its own with the pad force sensor (it was 3 times that without)."""
+    specs = [
+        RunSpec("condition-1", "oracle", seed, randomize="wider", sensor_set=sensors, duration_s=COLLIDED_S)
+        for seed in (1000, 1001)
+        for sensors in ("extended", "paper")
+    ]
+    runs = [result.metrics.flexible_unit_excursion_collision_m for result in run_all(specs)]
+    for extended, paper in zip(runs[::2], runs[1::2], strict=True):
+        assert paper == pytest.approx(extended, rel=0.05)
+
+
+def test_an_oracle_told_an_ideal_drive_asks_it_for_no_torque():
+    params = RigParams()
+    drive, ideal = plant_model(params), plant_model(params, ideal_drive=True)
+    torque = [PLANT_FIELDS.index(name) for name in DRIVE_TORQUE_FIELDS]
+    assert (ideal[torque] == 0).all()
+    assert (drive[torque] != 0).all()
+    np.testing.assert_array_equal(np.delete(ideal, torque), np.delete(drive, torque))
 
 
 def test_the_oracle_refuses_to_act_on_a_plant_it_was_not_told():

@@ -11,10 +11,12 @@ import pytest
 from microg_env.analysis.summary import summarise
 from microg_env.cli import main
 from microg_env.controllers.registry import load_policy, policy_card, shipped_policy_folder
-from microg_env.experiments.comparison import QUANTITIES, TEST_SEED, compare
-from microg_env.experiments.comparison_report import COMPARISON_FILES, render_markdown, write
+from microg_env.experiments.comparison import FLOORS, QUANTITIES, TEST_SEED, compare
+from microg_env.experiments.comparison_report import COMPARISON_FILES, FLOOR_TEXT, render_markdown, write
 from microg_env.experiments.comparison_settings import scenario_seeds
 from microg_env.learning.hyperparams import load as load_hyperparams
+from microg_env.rollout.runner import run_all
+from microg_env.rollout.spec import RunSpec
 
 #: The training seed of the shipped residual-sac-setpoint (docs/research-log.md: the best of five).
 SETPOINT_SEED = 5
@@ -23,18 +25,18 @@ REPO = Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="module")
 def randomized():
-    """pid and feedforward on condition 2 (6 s: the free fall and the collision), two randomised plants."""
+    """pid and feedforward on condition 2 (6 s: the free fall and the collision), two randomised
+    plants, and the floor bracket."""
     return compare(["pid", "feedforward"], ["condition-2"], seeds=2, randomize=True, duration_s=6.0)
 
 
 @pytest.mark.slow
 def test_every_controller_meets_the_same_plants_and_seeds(randomized):
     first, second = scenario_seeds("condition-2", TEST_SEED, 2)
+    rows = ["pid", "feedforward", *FLOORS]
     assert [(r.case.controller, r.case.seed) for r in randomized.results] == [
-        ("pid", first),
-        ("feedforward", first),
-        ("pid", second),
-        ("feedforward", second),
+        *((row, first) for row in rows),
+        *((row, second) for row in rows),
     ]
     by_seed = {}
     for r in randomized.results:  # the ideal reference depends only on the drawn lander, pad and loads
@@ -96,7 +98,40 @@ def test_the_report_holds_the_table_ratios_figures_and_json(randomized, tmp_path
     assert data["seeds"] == {"condition-2": list(scenario_seeds("condition-2", TEST_SEED, 2))}
     mean = data["summary"]["pid"]["collision_excursion_m"]["mean"]
     assert mean == pytest.approx(summarise(randomized.runs("pid"), lambda r: r.values["collision_excursion_m"]).mean)
-    assert len(data["cases"]) == 4
+    assert len(data["cases"]) == 8
+    assert data["floors"] == {name: {"controller": "oracle", "imperfections": FLOORS[name]} for name in FLOORS}
+    assert set(data["summary"]) == {"pid", "feedforward", *FLOORS}
+    assert FLOOR_TEXT in text
+    assert all(f"| {name} |" in text for name in FLOORS)
+
+
+@pytest.mark.slow
+def test_the_floor_rows_are_the_oracle_on_the_same_episodes_with_the_drive_made_ideal(randomized):
+    """Each floor row is the oracle's run of that episode with its imperfections off, value for value;
+    both lie below the feed-forward's x in free fall and at the collision on every episode."""
+    seeds = sorted({r.case.seed for r in randomized.results})
+    specs = [
+        RunSpec("condition-2", "oracle", seed, imperfections=FLOORS[name], randomize=True, duration_s=6.0)
+        for name in FLOORS
+        for seed in seeds
+    ]
+    direct = iter(run_all(specs))
+    for name in FLOORS:
+        for seed, run in zip(seeds, randomized.runs(name), strict=True):
+            metrics = next(direct).metrics
+            assert run.case.seed == seed
+            np.testing.assert_equal(run.values, {q: float(quantity.of(metrics)) for q, quantity in QUANTITIES.items()})
+    for name in FLOORS:
+        for ours, theirs in zip(randomized.runs(name), randomized.runs("feedforward"), strict=True):
+            for quantity in ("free_fall_excursion_m", "collision_excursion_m"):
+                assert ours.values[quantity] < 0.25 * theirs.values[quantity], (name, quantity)
+
+
+def test_a_comparison_without_the_floor_runs_only_its_controllers():
+    result = compare(["pid"], ["condition-2"], seeds=1, duration_s=0.2, floor=False)
+    assert (result.floors, result.rows) == ((), ("pid",))
+    assert [r.case.controller for r in result.results] == ["pid"]
+    assert "floors" not in render_markdown(result).lower()
 
 
 def test_a_quantity_a_run_never_reached_is_left_out_and_failures_are_counted(randomized):
@@ -248,7 +283,7 @@ def test_cli_compare_runs_held_out_schedules_on_wider_plants(capsys):
     """--randomize wider on the fastest held-out impact: the plants come from the wider ranges (the
     JSON says so) and each seed draws its own."""
     args = ["compare", "--controllers", "pid", "--scenarios", "fast-impact", "--seeds", "2", "--duration", "5"]
-    assert main([*args, "--randomize", "wider", "--json", "--quiet"]) == 0
+    assert main([*args, "--randomize", "wider", "--json", "--quiet", "--no-floor"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["randomize"] == "wider"
     assert data["scenarios"]["fast-impact"]["descent_height_m"] == 0.09
@@ -276,7 +311,7 @@ def test_the_figures_label_micrometres_and_say_which_plants(randomized):
         figures["x_landing.png"].get_suptitle()
         == f"x during the landing, each scenario's first seed{PLANT_TITLES[True]}"
     )
-    assert sorted(t.get_text() for t in axes[0].get_legend().get_texts()) == ["feedforward", "pid"]
+    assert sorted(t.get_text() for t in axes[0].get_legend().get_texts()) == sorted(["feedforward", "pid", *FLOORS])
     titles = [ax.get_title() for ax in figures["metrics.png"].axes]
     assert "x at the collision [µm]" in titles
     assert "x in free fall [µm]" in titles
@@ -322,7 +357,7 @@ def test_metrics_png_pairs_each_controller_with_its_interval_on_linear_axes(rand
     panels = figure.axes
     assert len(panels) == len(QUANTITIES)
     assert all(ax.get_xscale() == "linear" for ax in panels)
-    assert [t.get_text() for t in panels[0].get_yticklabels()] == ["feedforward"]
+    assert [t.get_text() for t in panels[0].get_yticklabels()] == ["feedforward", *FLOORS]
     assert {ax.get_xlabel() for ax in panels} == {"ratio to pid's mean"}
     assert "x at the collision [µm]" in [ax.get_title() for ax in panels]
     collision = panels[list(QUANTITIES).index("collision_excursion_m")]
@@ -336,7 +371,7 @@ def test_metrics_png_pairs_each_controller_with_its_interval_on_linear_axes(rand
     ratio = flipped.paired("pid", "collision_excursion_m").ratio
     assert ratio > OFF_SCALE
     assert f"{ratio:.3g}×" in texts
-    alone = paired_figure(replace(randomized, controllers=("pid",), results=randomized.runs("pid")))
+    alone = paired_figure(replace(randomized, controllers=("pid",), floors=(), results=randomized.runs("pid")))
     assert alone.axes[0].texts[0].get_text() == "one controller: nothing to pair"
 
 
@@ -352,7 +387,7 @@ def test_labels_name_a_policy_folder_in_tables_figures_and_json(randomized):
     assert data["labels"] == {"ff": "feedforward"}
     assert "ff" in data["paired"]
     legend = render_figures(shown)["x_landing.png"].axes[0].get_legend().get_texts()
-    assert sorted(t.get_text() for t in legend) == ["ff", "pid"]
+    assert sorted(t.get_text() for t in legend) == sorted(["ff", "pid", *FLOORS])
     refused = [{"ff": "adaptive"}, {"pid": "feedforward"}, {"a": "pid", "b": "pid"}, {"a,b": "pid"}]
     refused += [{"oracle": "feedforward"}, {"a|b": "pid"}, {"a\nb": "pid"}, {" a": "pid"}, {"": "pid"}]
     for labels in refused:  # a registry name on another's results would publish them as that controller's
