@@ -62,6 +62,7 @@ def main(argv: list[str] | None = None) -> int:
             workers=args.workers,
             reference=args.reference,
             physics_step_s=step_us / 1e6,
+            floor=False,
         )
         for step_us in args.steps_us
     ]

@@ -26,10 +26,10 @@ from microg_env.params import ScrewStageParams
 #: builds them): the paper's PID, its derivative-on-measurement variant, the PID with
 #: the nominal model's feed-forward, that feed-forward learning the motor's cogging as it runs
 #: (``adaptive``), that with a dither on its setpoint against the friction (``adaptive-dither``),
-#: that with the pad force from the nominal pad model where the rig has no pad force sensor
-#: (``adaptive-dither-pad``), and a reference point: the feed-forward told the episode's true
-#: plant (``oracle``, not deployable).
-BASELINES = ("pid", "pid-dom", "feedforward", "adaptive", "adaptive-dither", "adaptive-dither-pad", "oracle")
+#: that learning the friction's level too, with the pad force from the nominal pad where the rig
+#: has no pad force sensor (``adaptive-friction``), and a reference point: the feed-forward told
+#: the episode's true plant (``oracle``, not deployable).
+BASELINES = ("pid", "pid-dom", "feedforward", "adaptive", "adaptive-dither", "adaptive-friction", "oracle")
 #: Files of an exported policy folder: its network and its card (how it acts, how it was trained).
 NETWORK_FILE, CARD_FILE = "policy.npz", "policy.json"
 

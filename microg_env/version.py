@@ -1,3 +1,3 @@
 """The package's version (one owner: the package, the wheel's metadata and ``microg --version`` read it)."""
 
-__version__ = "0.26.0"
+__version__ = "0.27.0"

@@ -36,13 +36,13 @@ class SetpointController(Controller, Protocol):
     setpoint_m: np.ndarray
 
 
-def tell_plants(controller: Controller, ids: np.ndarray, plants: list[RigParams], ideal_drive: bool = False) -> None:
+def tell_plants(controller: Controller, ids: np.ndarray, plants: list[RigParams], *, ideal_drive: bool) -> None:
     """Tell a controller that takes it (the ``oracle``: ``know_plants``) the true plants of its rigs
     ``ids`` after their reset, and whether their drive is ideal (a speed source); every other
     controller is told nothing."""
     know = getattr(controller, "know_plants", None)
     if know is not None:
-        know(ids, plants, ideal_drive)
+        know(ids, plants, ideal_drive=ideal_drive)
 
 
 class VectorController:

@@ -186,7 +186,7 @@ class Oracle(Feedforward):
         super().grow(count)
         self._plant[start:] = math.nan
 
-    def know_plants(self, ids: np.ndarray, plants: list[RigParams], ideal_drive: bool = False) -> None:
+    def know_plants(self, ids: np.ndarray, plants: list[RigParams], *, ideal_drive: bool) -> None:
         """Rigs ``ids`` run on ``plants`` this episode, with an ideal drive (a speed source) or not."""
         ids = np.asarray(ids, dtype=np.int64)
         self.grow(int(ids.max(initial=-1)) + 1)
@@ -439,3 +439,75 @@ def advance_reference(ids, actions, offsets, max_speed, period, reference, pendi
         command = min(max(float(actions[j]), -1.0), 1.0) * max_speed
         reference[i] += pending[i] * period
         pending[i] = command - offsets[j] / period
+
+
+@dataclass(frozen=True)
+class FrictionSettings:
+    """The friction-level estimate's settings (config/controllers.toml, ``[adaptive-friction]``)."""
+
+    friction_gain: float  # share of the torque error the level's factor takes up per control period
+    min_friction_speed_rad_s: float  # the level is learned only while the motor turns faster than this
+
+    def __post_init__(self) -> None:
+        validate.non_negative("friction_gain", self.friction_gain)
+        validate.non_negative("min_friction_speed_rad_s", self.min_friction_speed_rad_s, "rad/s")
+
+    @classmethod
+    def load(cls) -> FrictionSettings:
+        return tuned_settings(cls, "adaptive-friction")
+
+
+#: The factor on the nominal friction levels that :class:`FrictionAdaptiveFeedforward` may reach:
+#: wider than any drawn plant's (``DomainRandomization.wider``: x0.25 to x1.75).
+FRICTION_FACTOR_RANGE = (0.1, 3.0)
+
+
+class FrictionAdaptiveFeedforward(DitheredAdaptiveFeedforward):
+    """``adaptive-dither`` that also learns the level of the friction as it runs, from the encoder
+    only (adaptive friction compensation; Canudas de Wit et al., IEEE TAC 40(3), 1995), and on a
+    rig without the pad force sensor takes the pad force from the nominal pad (``pad_model``).
+
+    The feed-forward asks the drive for the nominal LuGre friction torque; what the friction
+    needs beyond that, the speed loop supplies by lagging its reference. At a steady speed the
+    loop's integral holds that torque at kp times the slow lag (the lag the cogging estimate
+    low-passes at ``high_pass_hz``). The friction's Coulomb and static levels are the nominal ones
+    times one factor (the plants draw them so), and each period, while the motor turns faster than
+    ``min_friction_speed_rad_s``, the factor moves by ``friction_gain`` times that torque over
+    the nominal level at the measured speed, within :data:`FRICTION_FACTOR_RANGE`. It reads what
+    ``adaptive`` reads; each episode starts from the nominal levels.
+    """
+
+    def __init__(self, control_period_s: float, params: RigParams | None = None, gains: PIDGains | None = None) -> None:
+        super().__init__(control_period_s, params, gains=gains, pad_model=True)
+        self.friction = FrictionSettings.load()
+        #: The estimate's constants, in the order :func:`adapt_friction` takes them.
+        self.friction_constants = (
+            self.friction.friction_gain, self.friction.min_friction_speed_rad_s, *FRICTION_FACTOR_RANGE
+        )  # fmt: skip
+
+    def act(self, rows: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        actions = super().act(rows, ids)
+        adapt_friction(rows, ids, SCALES, self._plant, self.nominal, self._slow, *self.friction_constants)
+        return actions
+
+
+@jit
+def adapt_friction(rows, ids, scales, plant, nominal, slow, gain, min_speed, lowest, highest):
+    """One step of the friction levels' estimate of rigs ids (rows 14 and 15 of ``plant``: the
+    Coulomb and static torques, one factor on ``nominal``'s), from the slow lag of the speed loop
+    (``slow``, motor rad); see :class:`FrictionAdaptiveFeedforward`."""
+    gear, kp = nominal[5], nominal[6]
+    coulomb, static, stribeck_speed = nominal[14], nominal[15], nominal[16]
+    if coulomb <= 0.0:  # no Coulomb level to scale
+        return
+    for j in range(ids.size):
+        i = ids[j]
+        speed = gear * rows[j, SUPPORT_VELOCITY] * scales[SUPPORT_VELOCITY]  # the motor's, rad/s
+        ratio = speed / stribeck_speed
+        level = coulomb + (static - coulomb) * np.exp(-(ratio * ratio))
+        if abs(speed) < min_speed or level <= 0.0:
+            continue
+        factor = plant[i, 14] / coulomb + gain * kp * slow[i] / (np.sign(speed) * level)
+        factor = min(max(factor, lowest), highest)
+        plant[i, 14] = factor * coulomb
+        plant[i, 15] = factor * static

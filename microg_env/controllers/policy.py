@@ -278,10 +278,10 @@ class PolicyController(VectorController):
         self._base_command_m_s[ids] = command.astype(np.float64) * MAX_SPEED_M_S
         return command
 
-    def know_plants(self, ids: np.ndarray, plants: list, ideal_drive: bool = False) -> None:
+    def know_plants(self, ids: np.ndarray, plants: list, *, ideal_drive: bool) -> None:
         """Pass the plants on to a base that takes them (an oracle base)."""
         if self.base is not None:
-            tell_plants(self.base, ids, plants, ideal_drive)
+            tell_plants(self.base, ids, plants, ideal_drive=ideal_drive)
 
 
 @jit

@@ -23,7 +23,13 @@ import gymnasium as gym
 
 from microg_env import validate
 from microg_env.controllers.base import Controller
-from microg_env.controllers.feedforward import AdaptiveFeedforward, DitheredAdaptiveFeedforward, Feedforward, Oracle
+from microg_env.controllers.feedforward import (
+    AdaptiveFeedforward,
+    DitheredAdaptiveFeedforward,
+    Feedforward,
+    FrictionAdaptiveFeedforward,
+    Oracle,
+)
 from microg_env.controllers.pid import PID, load_gains
 from microg_env.controllers.policy import MAX_NETWORK_BYTES, MLPPolicy, PolicyController
 from microg_env.interface import (
@@ -48,7 +54,7 @@ FEEDFORWARDS = {
     "feedforward": Feedforward,
     "adaptive": AdaptiveFeedforward,
     "adaptive-dither": DitheredAdaptiveFeedforward,
-    "adaptive-dither-pad": functools.partial(DitheredAdaptiveFeedforward, pad_model=True),
+    "adaptive-friction": FrictionAdaptiveFeedforward,
     "oracle": Oracle,
 }
 #: Most bytes a policy card may hold.

@@ -373,7 +373,7 @@ class LandingCore:
         if self.base is not None:
             self.base.reset(ids)
             # an oracle base knows them
-            tell_plants(self.base, ids, [self.episodes[i].params for i in ids], self.rig.ideal_drive)
+            tell_plants(self.base, ids, [self.episodes[i].params for i in ids], ideal_drive=self.rig.ideal_drive)
         self._place_due_loads(ids, self.trim_height_m[ids])
         physics.forward(ids)
         self._observe(ids, rngs)

@@ -52,7 +52,7 @@ class MicroGravityLandingEnv(gym.Env):
       positive;
     * ``action_mode="residual"``: a setpoint for x, scaled to +-``residual_limit_m`` (1 um), on a
       base controller (``base_controller``: ``pid``, ``pid-dom``, ``feedforward``, ``adaptive``,
-      ``adaptive-dither`` or ``oracle``, which is told each episode's plant) that commands the
+      ``adaptive-dither``, ``adaptive-friction`` or ``oracle``, which is told each episode's plant) that commands the
       drive every control period from the latest observation. An action of 0 is the base controller.
       With ``residual_highpass_hz`` the setpoint is the action high-passed
       (:func:`~microg_env.interface.residual_setpoint`): a held action decays to 0, and with

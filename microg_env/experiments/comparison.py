@@ -28,8 +28,9 @@ from microg_env.analysis.paired import Paired, paired
 from microg_env.analysis.summary import Summary, finite_mean, summarise
 from microg_env.controllers.registry import check_controller_name, controller_digest
 from microg_env.experiments.comparison_settings import MAX_SEEDS, MAX_WORKERS, TEST_SEED, scenario_seeds
+from microg_env.imperfections import Imperfections, apply_imperfections
 from microg_env.interface import CONTROLLER_NAMES
-from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S
+from microg_env.params import CONTROL_PERIOD_S, PHYSICS_STEP_S, parameter_paths
 from microg_env.rollout.runner import run_many
 from microg_env.rollout.spec import RunSpec
 from microg_env.scenarios import Scenario, comparison_scenarios
@@ -39,12 +40,13 @@ from microg_env.trajectory import Trajectory
 #: The window of x kept for the figure, s before and after the first touchdown.
 X_WINDOW_S = (-1.0, 3.0)
 #: The floor bracket beside every comparison (#46): the ``oracle`` (told each episode's plant) on the
-#: same episode with parts of the drive made ideal, so each controller reads against what the
-#: physics leaves rather than against one controller's structure. ``floor-ideal-drive``: the drive
-#: a speed source that follows its reference exactly (no speed loop, torque filter, torque limit,
-#: cogging or motor friction); ``floor-no-cogging-friction``: the drive as assumed without its
-#: cogging and without friction (the motor's, the screw's and the QZS guide's). The control delay,
-#: the sensors' noise and the rest of the plant stay. Imperfections switched off, by floor.
+#: same episode with parts of the drive made ideal, so that each controller reads against what is
+#: left once the drive's imperfections go, not against the oracle alone. They are reference points
+#: of the oracle's structure, not bounds. ``floor-ideal-drive``: the drive a speed source that
+#: follows its reference exactly (no speed loop, torque filter, torque limit, cogging or motor
+#: friction); ``floor-no-cogging-friction``: the drive as assumed without its cogging and without
+#: friction (the motor's, the screw's and the QZS guide's). The control delay, the sensors' noise
+#: and the rest of the plant stay. Imperfections switched off, by floor.
 FLOORS: dict[str, dict[str, bool]] = {
     "floor-ideal-drive": {"servo_lag": False},
     "floor-no-cogging-friction": {"cogging": False, "friction": False},
@@ -236,7 +238,9 @@ class Comparison:
             "quantities": {
                 name: {"label": q.label, "si_unit_times": q.scale, "unit": q.unit} for name, q in QUANTITIES.items()
             },
-            "floors": {name: {"controller": FLOOR_CONTROLLER, "imperfections": FLOORS[name]} for name in self.floors},
+            "floors": {
+                name: {"controller": FLOOR_CONTROLLER, "imperfections": dict(FLOORS[name])} for name in self.floors
+            },
             "summary": {c: summaries(c, None) for c in self.rows},
             "per_scenario": {c: {s: summaries(c, s) for s in self.scenarios} for c in self.rows},
             "reference": self.reference,
@@ -271,6 +275,8 @@ def check_labels(labels: Mapping[str, str], controllers: Sequence[str]) -> None:
     not another controller's, nor a controller's the registry knows (``oracle`` on ``adaptive``'s
     results would publish them as the oracle's)."""
     for label, run in labels.items():
+        if label in FLOORS:
+            raise ValueError(f"label {label}={run}: {label!r} names a floor row")
         if run not in controllers:
             raise ValueError(f"label {label}={run}: {run!r} is not one of the controllers {', '.join(controllers)}")
         if not LABEL_PATTERN.fullmatch(label):
@@ -279,6 +285,17 @@ def check_labels(labels: Mapping[str, str], controllers: Sequence[str]) -> None:
             raise ValueError(f"label {label}={run}: {label!r} names another controller")
     if len(set(labels.values())) < len(labels):
         raise ValueError(f"label: a controller is given two names ({', '.join(labels)})")
+
+
+def _floor_overrides(overrides: Mapping[str, Any], off: Mapping[str, bool]) -> dict[str, Any]:
+    """The rig ``overrides`` that a floor with the imperfections ``off`` runs: those it leaves as
+    given (a cogging or friction value set by the rig is overwritten where the floor switches that
+    imperfection off, and the run would refuse it as unused)."""
+    params = RunSpec(overrides=overrides).rig_params()
+    flags = replace(Imperfections(), **off)
+    applied = parameter_paths(apply_imperfections(params, flags))
+    given = parameter_paths(params)
+    return {path: value for path, value in overrides.items() if applied[path] == given[path]}
 
 
 def compare(
@@ -309,6 +326,8 @@ def compare(
         if name not in known:
             raise ValueError(f"scenario must be one of {', '.join(known)}, got {name!r}")
     for controller in controllers:
+        if controller in FLOORS:
+            raise ValueError(f"controller {controller!r} names a floor row; floor=True runs the floors")
         check_controller_name(controller, sensor_set)
     if not controllers or not names:
         raise ValueError("give at least one controller and one scenario")
@@ -356,7 +375,9 @@ def compare(
                 control_period_us=control_period_s * 1e6,
                 duration_s=length,
                 sensor_set=sensor_set,
-                overrides=comparison.overrides,
+                overrides=_floor_overrides(comparison.overrides, FLOORS[case.controller])
+                if case.controller in FLOORS
+                else comparison.overrides,
                 physics_step_us=physics_step_s * 1e6,
             )
         )

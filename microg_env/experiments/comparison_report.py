@@ -44,10 +44,10 @@ def _summary_cell(c: Comparison, controller: str, name: str, scenario: str | Non
 
 #: What the floor rows are (:data:`~microg_env.experiments.comparison.FLOORS`), in words.
 FLOOR_TEXT = (
-    "The floor rows are references, not controllers: `oracle`, told each episode's plant, on the same episode "
-    "with the drive a perfect speed source (`floor-ideal-drive`) or without cogging and friction "
-    "(`floor-no-cogging-friction`); the control delay and the sensors' noise stay. They bracket what the "
-    "physics leaves to any controller that reads these sensors."
+    "The floor rows are reference points, not controllers and not bounds: `oracle`, told each episode's plant, "
+    "on the same episode with the drive a perfect speed source (`floor-ideal-drive`) or without cogging and "
+    "friction (`floor-no-cogging-friction`); the control delay and the sensors' noise stay. They show what is "
+    "left once the drive's imperfections go."
 )
 #: The sensor sets in words.
 SENSORS = {
@@ -230,7 +230,7 @@ def render_figures(c: Comparison) -> dict[str, object]:
             for result in c.runs(controller, scenario):
                 if result.x_window is not None:
                     edges, peaks = windowed_peak(*result.x_window)
-                    ax.stairs(peaks * 1e6, edges, baseline=None, lw=1.2, color=f"C{i}", label=controller)
+                    ax.stairs(peaks * 1e6, edges, baseline=None, lw=1.2, color=row_colour(c, i), label=controller)
         ax.axvline(0.0, color="k", lw=0.5)
         ax.set_yscale("log")
         ax.set_ylim(*PEAK_LIMITS_UM)
@@ -251,6 +251,16 @@ def render_figures(c: Comparison) -> dict[str, object]:
 #: its value written, and an interval reaching past it ends in an arrow at the edge, so that the
 #: PID's 30 times does not flatten the sub-µm controllers' intervals around 1.
 OFF_SCALE = 4.0
+
+
+def row_colour(c: Comparison, row: int):
+    """The colour of row ``row`` of ``c.rows`` in both figures: matplotlib's ten cycle colours while
+    they suffice, else tab20's twenty, so that no two rows share one."""
+    if len(c.rows) <= 10:
+        return f"C{row}"
+    from matplotlib import colormaps
+
+    return colormaps["tab20"](row % 20)
 
 
 def _count(n: int, noun: str) -> str:
@@ -282,7 +292,7 @@ def paired_figure(c: Comparison, size: tuple[float, float] | None = None):
         left = low * 0.9 if low > 0.5 else 0.0  # from 0 unless every interval is close to 1
         right = max([1.0, *shown]) * 1.1
         for row, p in found:
-            color = f"C{c.rows.index(others[row])}"
+            color = row_colour(c, c.rows.index(others[row]))
             if p.ratio > right:  # off the scale: an arrow at the edge and the value
                 ax.plot(right, row, ">", color=color, ms=7)
                 ax.annotate(f"{p.ratio:.3g}×", (right, row), xytext=(-6, 5), textcoords="offset points", ha="right")

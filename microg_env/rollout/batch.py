@@ -125,7 +125,8 @@ def _run_chunk(episodes, settings, nthread, progress) -> list[tuple[Trajectory, 
                 controller, core.settings.control_period_s, nominal, dict(gains), core.settings.sensor_set, digest
             )
         controller.reset(np.arange(rigs.size))
-        tell_plants(controller, np.arange(rigs.size), [core.episodes[i].params for i in rigs], core.rig.ideal_drive)
+        plants = [core.episodes[i].params for i in rigs]
+        tell_plants(controller, np.arange(rigs.size), plants, ideal_drive=core.rig.ideal_drive)
         groups.append((who[0] if isinstance(who[0], str) else type(who[0]).__name__, controller, rigs))
     channels = CHANNELS[:-1]  # every channel but the reward comes from info
     record = np.zeros((len(CHANNELS), n, int(core.max_steps.max()) + 1))

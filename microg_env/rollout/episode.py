@@ -59,7 +59,7 @@ def run_episode(
     scenario_duration = rig_env.active_scenario.duration_s
     steps = round(min(scenario_duration, duration_s or scenario_duration) / rig_env.settings.control_period_s)
     controller.reset()
-    tell_plants(controller, np.zeros(1, dtype=np.int64), [rig_env.params], rig_env.core.rig.ideal_drive)
+    tell_plants(controller, np.zeros(1, dtype=np.int64), [rig_env.params], ideal_drive=rig_env.core.rig.ideal_drive)
     raw = env is rig_env and type(env) is MicroGravityLandingEnv  # nothing overrides its step
     if raw and on_step is None and env.render_mode != "human" and rig_env.core.can_run_pid(controller):
         return _run_pid(rig_env, controller, steps, on_progress)  # the same steps, one compiled loop

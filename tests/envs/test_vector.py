@@ -307,7 +307,8 @@ def test_vectorised_controllers_equal_one_controller_per_rig():
     """A controller given n observations acts as n controllers given one each."""
     rng = np.random.default_rng(3)
     observations = rng.normal(scale=0.3, size=(40, 4, 10)).astype(np.float32)
-    for name in ("pid", "pid-dom", "feedforward", "adaptive", "adaptive-dither", "residual-sac-setpoint"):
+    baselines = ("pid", "pid-dom", "feedforward", "adaptive", "adaptive-dither", "adaptive-friction")
+    for name in (*baselines, "residual-sac-setpoint"):
         together = make_controller(name, 1e-3)
         apart = [make_controller(name, 1e-3) for _ in range(4)]
         for rows in observations:

@@ -11,7 +11,15 @@ import pytest
 from microg_env.analysis.summary import summarise
 from microg_env.cli import main
 from microg_env.controllers.registry import load_policy, policy_card, shipped_policy_folder
-from microg_env.experiments.comparison import FLOORS, QUANTITIES, TEST_SEED, compare
+from microg_env.experiments.comparison import (
+    FLOORS,
+    QUANTITIES,
+    TEST_SEED,
+    Comparison,
+    _floor_overrides,
+    check_labels,
+    compare,
+)
 from microg_env.experiments.comparison_report import COMPARISON_FILES, FLOOR_TEXT, render_markdown, write
 from microg_env.experiments.comparison_settings import scenario_seeds
 from microg_env.learning.hyperparams import load as load_hyperparams
@@ -131,7 +139,33 @@ def test_a_comparison_without_the_floor_runs_only_its_controllers():
     result = compare(["pid"], ["condition-2"], seeds=1, duration_s=0.2, floor=False)
     assert (result.floors, result.rows) == ((), ("pid",))
     assert [r.case.controller for r in result.results] == ["pid"]
-    assert "floors" not in render_markdown(result).lower()
+    assert FLOOR_TEXT not in render_markdown(result)
+
+
+def test_a_floor_runs_the_rig_less_what_it_switches_off():
+    """A rig file's cogging and friction values are the rig's, and the floor that switches those
+    imperfections off drops them (a run would refuse them as unused); the other floor keeps them."""
+    rig = {"servo.cogging_torque_n_m": 0.3, "screw.viscous_n_s_per_m": 150.0, "lander.mass_kg": 600.0}
+    assert _floor_overrides(rig, FLOORS["floor-no-cogging-friction"]) == {"lander.mass_kg": 600.0}
+    assert _floor_overrides(rig, FLOORS["floor-ideal-drive"]) == rig
+    result = compare(["pid"], ["condition-2"], seeds=1, duration_s=0.1, overrides=rig)
+    assert result.rows == ("pid", *FLOORS)
+
+
+def test_floor_names_are_reserved():
+    with pytest.raises(ValueError, match="names a floor row"):
+        compare(["pid", "floor-ideal-drive"], ["condition-2"], seeds=1, duration_s=0.1)
+    with pytest.raises(ValueError, match="names a floor row"):
+        check_labels({"floor-ideal-drive": "pid"}, ["pid"])
+
+
+def test_every_row_has_a_colour_of_its_own():
+    from microg_env.experiments.comparison_report import row_colour
+
+    for count in (3, 10, 12, 20):
+        rows = replace(Comparison((), {}, {}, False, 1e-3, None), controllers=tuple(f"c{i}" for i in range(count)))
+        colours = [str(row_colour(rows, i)) for i in range(count)]
+        assert len(set(colours)) == count
 
 
 def test_a_quantity_a_run_never_reached_is_left_out_and_failures_are_counted(randomized):
