@@ -109,13 +109,13 @@ del _retired_id
 # The residual task: a high-passed x setpoint within +-3 um (interface.residual_setpoint, two stages at
 # RESIDUAL_HIGHPASS_HZ, so the residual shapes transients and cannot move the steady x its base holds) on
 # `adaptive-dither` (the best deployable classical controller until 0.27.0's `adaptive-friction`), held 5
-# control periods, gated to the contact: the gate passes the filtered setpoint from the moment the foot reads at or below the pad's
-# surface (interface.gated_setpoint), so an action held before the contact has decayed when the gate
-# opens. Training schedules and plants and drives are drawn at every reset. The agent reads the paper's
-# rig's sensors (SENSOR_SETS["paper"] hidden from it, whatever the rig has; the base reads all the rig
-# has) but the support's absolute position, so one policy runs alike on both sensor sets. The shipped
-# `residual-sac-setpoint` was trained on it. Its lineage, v1-v5 (retired in 0.26.0): docs/research-log.md.
-# A zero action is exactly `adaptive-dither`: reward_threshold is its return.
+# control periods, gated to the contact: the gate passes the filtered setpoint from the moment the foot reads at
+# or below the pad's surface (interface.gated_setpoint), so an action held before the contact has decayed when
+# the gate opens. Training schedules and plants and drives are drawn at every reset. The agent reads the paper's
+# rig's sensors (SENSOR_SETS["paper"] hidden from it, whatever the rig has; the base reads all the rig has) but
+# the support's absolute position, so one policy runs alike on both sensor sets. The shipped
+# `residual-sac-setpoint` was trained on it. Its lineage, v1-v5 (retired in 0.26.0): docs/research-log.md. A
+# zero action is exactly `adaptive-dither`: reward_threshold is its return.
 _register(
     "MicroGravityLanding-Residual-v6",
     {
