@@ -55,7 +55,7 @@ def timed_episode(env: MicroGravityLandingEnv, controller, seed: int, steps: int
     ``steps`` periods of the episode of ``seed`` (as ``run_episode`` drives it)."""
     obs, info = env.reset(seed=seed)
     controller.reset()
-    tell_plants(controller, np.zeros(1, dtype=np.int64), [env.params])
+    tell_plants(controller, np.zeros(1, dtype=np.int64), [env.params], ideal_drive=env.core.rig.ideal_drive)
     times, observations = np.zeros(steps, dtype=np.int64), np.zeros((steps, obs.size))
     for k in range(steps):
         observations[k] = obs

@@ -36,7 +36,7 @@ GRACE_S = 10.0
 KILLS = [signal.SIGKILL, signal.SIGTERM]
 REPRODUCE = ["reproduce", "--duration", "1", "--workers", "2", "--quiet"]
 COMPARE = ["compare", "--controllers", "pid,feedforward", "--scenarios", "condition-2", "--seeds", "2"]
-COMPARE += ["--duration", "3", "--workers", "2", "--quiet"]
+COMPARE += ["--duration", "3", "--workers", "2", "--quiet", "--no-floor"]
 CAMPAIGN = """\
 name: killed
 base: {scenario: condition-2, duration_s: 0.3}
