@@ -22,6 +22,11 @@ def _probe_paths(monkeypatch):
     ("name", "args", "expected"),
     [
         ("partial_oracles", ["--seeds", "1000", "--duration", "0.3"], "cogging and speed loop"),
+        (
+            "friction_structure",
+            ["--scenarios", "heavy-second", "--seeds", "1000", "--coulomb", "0.2", "--duration", "0.3"],
+            "the Coulomb level alone",
+        ),
         ("fifty_gram_joint_fit", [], "| joint, relative | -7.08 |"),
         ("plain_sb3", ["--seeds", "0", "--steps", "64", "--episodes", "1", "--zero"], "| zero action | | "),
         (
