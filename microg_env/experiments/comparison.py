@@ -360,6 +360,8 @@ def compare(
         physics_step_s=physics_step_s,
         floors=floors,
     )
+    # each row's rig: the comparison's, less what a floor's switched-off imperfections overwrite
+    rigs = {name: _floor_overrides(comparison.overrides, FLOORS[name]) for name in floors}
     specs = []
     for case in cases:
         length = (
@@ -375,9 +377,7 @@ def compare(
                 control_period_us=control_period_s * 1e6,
                 duration_s=length,
                 sensor_set=sensor_set,
-                overrides=_floor_overrides(comparison.overrides, FLOORS[case.controller])
-                if case.controller in FLOORS
-                else comparison.overrides,
+                overrides=rigs.get(case.controller, comparison.overrides),
                 physics_step_us=physics_step_s * 1e6,
             )
         )
